@@ -1,0 +1,1 @@
+"""Machinery shared by every algorithm of the package: costs, safety metrics."""

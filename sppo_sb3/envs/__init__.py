@@ -1,0 +1,10 @@
+"""The constrained tasks of the paper, registered with gymnasium on ``import sppo_sb3``."""
+
+from gymnasium.envs.registration import register, registry
+
+from sppo_sb3.envs.point_circle import PointParams, SafePointCircleEnv
+
+if "SafePointCircle-v0" not in registry:
+    register(id="SafePointCircle-v0", entry_point="sppo_sb3.envs.point_circle:SafePointCircleEnv", max_episode_steps=500)
+
+__all__ = ["PointParams", "SafePointCircleEnv"]
