@@ -54,7 +54,6 @@ def costs_from_infos(infos: Sequence[dict[str, Any]]) -> np.ndarray:
         ) from None
 
 
-
 class CostInfoWrapper(gym.Wrapper):
     """Adds ``info["cost"]`` to an env that does not report it, from a user-supplied indicator.
 

@@ -1,0 +1,157 @@
+"""SPPO's replay buffer: the real transitions ``B`` and their absorbing-MDP relabel ``B̃`` in one storage.
+
+``B`` (Alg. 1 line 7) holds every real step ``(s, a_safe, r, cost, s')``. ``B̃`` (line 8) holds the experience of the
+*unshielded* planner in the absorbing MDP ``M̃`` (eqs. 7, 8; the ``ã`` rule of Section III-D). Both agree on every
+step before the first intervention ``T`` of an episode; at ``T``, ``B̃`` records ``(s_T, a_T, R̃, terminal)`` with the
+planner's proposed ``a_T``, and after ``T`` the paper's ``M̃`` stays in ``s†``, so ``B̃`` holds nothing more of that
+episode. ``B̃`` is therefore a view of ``B`` plus one action column and two flags — no second copy of the data.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal, NamedTuple
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.vec_env import VecNormalize
+
+from sppo_sb3.common.costs import COST_KEY
+from sppo_sb3.common.safety import INTERVENED_KEY
+from sppo_sb3.shield.wrapper import PROPOSED_ACTION_KEY
+
+AbsorbingMode = Literal["terminate", "restart"]
+
+
+class SequenceSamples(NamedTuple):
+    """``L``-step sequences from ``B̃`` (time-major, batch ``B``).
+
+    :param observations: ``(B, obs_dim)`` the first state ``s_t`` of each sequence (the only one encoded).
+    :param actions: ``(L, B, A)`` actions ``ã`` of ``M̃`` (scaled to [-1, 1]).
+    :param rewards: ``(L, B)`` rewards ``r̃`` of eq. 7.
+    :param next_observations: ``(L, B, obs_dim)`` next states, targets of the consistency loss (eq. 17).
+    :param terminals: ``(L, B)`` 1 where the step ends in a terminal (no bootstrap in eq. 16).
+    :param mask: ``(L, B)`` 1 where the step belongs to the sequence (not past an episode end or the write head).
+    :param consistency_mask: ``(L, B)`` ``mask`` without absorbing steps, whose next state ``s†`` has no observation.
+    """
+
+    observations: th.Tensor
+    actions: th.Tensor
+    rewards: th.Tensor
+    next_observations: th.Tensor
+    terminals: th.Tensor
+    mask: th.Tensor
+    consistency_mask: th.Tensor
+
+
+class ShieldedReplayBuffer(ReplayBuffer):
+    """Replay buffer of real transitions ``B`` with the absorbing relabel ``B̃`` (Section III-D).
+
+    Reads the step's ``info["cost"]``, ``info["shield_intervened"]`` and ``info["proposed_action"]`` (env units)
+    in :meth:`add`. :meth:`sample` draws single transitions of ``B``; :meth:`sample_sequences` draws sequences of
+    ``B̃`` for TOPO.
+
+    :param absorbing: ``"terminate"`` (the paper's ``M̃``: nothing more of an episode after its first intervention)
+        or ``"restart"`` (every intervention is an absorbing terminal, and ``B̃`` restarts at the next real state).
+    :param penalty: ``R̃``, the reward of the absorbing transition (eq. 7).
+    """
+
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        device: th.device | str = "auto",
+        n_envs: int = 1,
+        optimize_memory_usage: bool = False,
+        handle_timeout_termination: bool = True,
+        absorbing: AbsorbingMode = "terminate",
+        penalty: float = -1.0,
+    ) -> None:
+        if optimize_memory_usage:
+            raise ValueError("ShieldedReplayBuffer keeps next observations explicitly: use optimize_memory_usage=False.")
+        if absorbing not in ("terminate", "restart"):
+            raise ValueError(f"absorbing must be 'terminate' or 'restart', got {absorbing!r}.")
+        super().__init__(buffer_size, observation_space, action_space, device, n_envs, False, handle_timeout_termination)
+        assert isinstance(action_space, spaces.Box)
+        self.absorbing, self.penalty = absorbing, penalty
+        self.proposed_actions = np.zeros_like(self.actions)
+        self.costs = np.zeros((self.buffer_size, self.n_envs), dtype=np.float32)
+        self.intervened = np.zeros((self.buffer_size, self.n_envs), dtype=bool)
+        self.relabel_valid = np.zeros((self.buffer_size, self.n_envs), dtype=bool)
+        self._absorbed = np.zeros(self.n_envs, dtype=bool)  # M̃ has reached s† in the env's current episode
+        self._low, self._high = action_space.low, action_space.high
+
+    def add(
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        done: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        pos = self.pos
+        intervened = np.array([bool(info.get(INTERVENED_KEY, False)) for info in infos])
+        proposed = np.array(
+            [self._scale(info[PROPOSED_ACTION_KEY]) if PROPOSED_ACTION_KEY in info else a for info, a in zip(infos, action)]
+        )
+        self.costs[pos] = [float(info.get(COST_KEY, 0.0)) for info in infos]
+        self.intervened[pos] = intervened
+        self.proposed_actions[pos] = proposed.reshape(self.n_envs, self.action_dim)
+        self.relabel_valid[pos] = ~self._absorbed  # the ã rule: M̃ data until (and including) T
+        if self.absorbing == "terminate":
+            self._absorbed |= intervened
+        self._absorbed[np.asarray(done, dtype=bool)] = False
+        super().add(obs, next_obs, action, reward, done, infos)
+
+    def _scale(self, action: np.ndarray) -> np.ndarray:
+        return 2.0 * (np.asarray(action) - self._low) / (self._high - self._low) - 1.0
+
+    def _available(self, starts: np.ndarray) -> np.ndarray:
+        """How many consecutive written steps follow each start index before the write head."""
+        if not self.full:
+            return self.pos - starts
+        avail = (self.pos - starts) % self.buffer_size
+        return np.where(avail == 0, self.buffer_size, avail)
+
+    def _sample_starts(self, batch_size: int) -> tuple[np.ndarray, np.ndarray]:
+        """Uniform (time, env) starts among the steps that belong to ``B̃``."""
+        upper = self.buffer_size if self.full else self.pos
+        if upper == 0 or not self.relabel_valid[:upper].any():
+            raise RuntimeError("B̃ holds no transition yet: collect some steps before sampling sequences.")
+        times, envs = np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
+        while len(times) < batch_size:
+            t = np.random.randint(0, upper, size=2 * batch_size)
+            e = np.random.randint(0, self.n_envs, size=2 * batch_size)
+            keep = self.relabel_valid[t, e]
+            times, envs = np.concatenate([times, t[keep]]), np.concatenate([envs, e[keep]])
+        return times[:batch_size], envs[:batch_size]
+
+    def sample_sequences(self, batch_size: int, length: int, env: VecNormalize | None = None) -> SequenceSamples:
+        """Sample ``batch_size`` sequences of ``length`` steps of ``B̃`` that never cross an episode end.
+
+        Steps after an episode end (termination, truncation or absorbing intervention), after the write head or
+        outside ``B̃`` are masked out.
+        """
+        starts, envs = self._sample_starts(batch_size)
+        offsets = np.arange(length)[:, None]
+        idx = (starts[None] + offsets) % self.buffer_size  # (L, B)
+        intervened = self.intervened[idx, envs]
+        ends = self.dones[idx, envs].astype(bool) | intervened
+        crossed = np.cumsum(np.concatenate([np.zeros((1, batch_size), bool), ends[:-1]]), axis=0) > 0
+        mask = (offsets < self._available(starts)[None]) & ~crossed & self.relabel_valid[idx, envs]
+        actions = np.where(intervened[..., None], self.proposed_actions[idx, envs], self.actions[idx, envs])
+        rewards = np.where(intervened, self.penalty, self.rewards[idx, envs])
+        terminals = (self.dones[idx, envs] * (1 - self.timeouts[idx, envs])).astype(bool) | intervened
+        data = (
+            self._normalize_obs(self.observations[starts, envs], env),
+            actions,
+            self._normalize_reward(rewards, env),
+            self._normalize_obs(self.next_observations[idx, envs], env),
+            terminals,
+            mask,
+            mask & ~intervened,
+        )
+        return SequenceSamples(*(self.to_torch(np.asarray(x, dtype=np.float32)) for x in data))

@@ -1,0 +1,174 @@
+"""Policy-guided MPPI in TOLD's latent space (eqs. 2, 3, 10, 11; Alg. 2 lines 2–15), batched over all envs.
+
+Shapes: ``E`` envs, ``N`` Gaussian samples, ``P`` policy samples, ``H`` horizon, ``A`` action dims. Every tensor
+carries all envs at once; the only Python loops run over the ``H`` model steps and the ``J`` iterations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch as th
+
+from sppo_sb3.sppo.policies import TOLD
+
+
+def linear_schedule(start: float, end: float, duration: int, step: int) -> float:
+    """Linear interpolation from ``start`` to ``end`` over ``duration`` steps, then constant at ``end``."""
+    frac = min(max(step, 0) / duration, 1.0) if duration > 0 else 1.0
+    return start + frac * (end - start)
+
+
+@dataclass
+class MPPIConfig:
+    """Planner settings (TD-MPC defaults).
+
+    :param num_samples: ``N``, trajectories sampled from ``N(μ, σ²)`` per iteration.
+    :param num_elites: ``k``, the top-k trajectories that refit ``μ, σ``.
+    :param iterations: ``J``, refits per planned action.
+    :param horizon: final planning horizon ``H``.
+    :param horizon_warmup: steps over which ``H`` grows linearly from 1 to ``horizon``.
+    :param policy_fraction: ``N_π / N``, share of trajectories proposed by ``π`` (TD-MPC's mixture coefficient).
+    :param temperature: ``τ`` of the elite weights ``Ω = exp(τ(Φ - max Φ))``.
+    :param momentum: weight of the previous mean in ``μ ← m·μ + (1 - m)·μ_new``.
+    :param min_std_start: ``ε`` of eq. 11 at step 0.
+    :param min_std_end: ``ε`` after ``min_std_decay`` steps.
+    :param min_std_decay: steps of the linear decay of ``ε``.
+    :param max_std: upper clamp of ``σ`` (and its initial value).
+    :param policy_std: std of the clipped noise on ``π``'s actions inside the planner.
+    :param gamma: discount of eq. 10.
+    """
+
+    num_samples: int = 512
+    num_elites: int = 64
+    iterations: int = 6
+    horizon: int = 5
+    horizon_warmup: int = 25_000
+    policy_fraction: float = 0.05
+    temperature: float = 0.5
+    momentum: float = 0.1
+    min_std_start: float = 0.5
+    min_std_end: float = 0.05
+    min_std_decay: int = 25_000
+    max_std: float = 2.0
+    policy_std: float = 0.05
+    gamma: float = 0.99
+
+    def horizon_at(self, step: int) -> int:
+        return max(1, round(linear_schedule(1, self.horizon, self.horizon_warmup, step)))
+
+    def min_std_at(self, step: int) -> float:
+        return linear_schedule(self.min_std_start, self.min_std_end, self.min_std_decay, step)
+
+    @property
+    def num_policy_samples(self) -> int:
+        return int(self.policy_fraction * self.num_samples)
+
+
+def trajectory_return(model: TOLD, z: th.Tensor, actions: th.Tensor, gamma: float, policy_std: float) -> th.Tensor:
+    """``Φ = Σ_{t<H} γ^t R(z_t, a_t) + γ^H min Q(z_H, π(z_H))`` (eq. 10) for a flat batch.
+
+    :param z: ``(B, latent)`` start latents.
+    :param actions: ``(H, B, A)`` action sequences.
+    :return: ``(B,)`` returns.
+    """
+    value = th.zeros(z.shape[0], device=z.device)
+    for t in range(actions.shape[0]):
+        z, reward = model.next(z, actions[t])
+        value += gamma**t * reward.squeeze(-1)
+    terminal = model.min_q(z, model.policy(z, policy_std)).squeeze(-1)
+    return value + gamma ** actions.shape[0] * terminal
+
+
+def policy_rollout(model: TOLD, z: th.Tensor, horizon: int, gamma: float, policy_std: float) -> tuple[th.Tensor, th.Tensor]:
+    """Roll ``π`` through ``d`` (Alg. 2 line 5) and score it by eq. 10 in the same pass.
+
+    :return: actions ``(H, B, A)`` and returns ``(B,)``.
+    """
+    actions, value = [], th.zeros(z.shape[0], device=z.device)
+    for t in range(horizon):
+        actions.append(model.policy(z, policy_std))
+        z, reward = model.next(z, actions[-1])
+        value += gamma**t * reward.squeeze(-1)
+    value += gamma**horizon * model.min_q(z, model.policy(z, policy_std)).squeeze(-1)
+    return th.stack(actions), value
+
+
+def refit_gaussian(elites: th.Tensor, elite_returns: th.Tensor, temperature: float) -> tuple[th.Tensor, th.Tensor]:
+    """Weighted elite mean and std (eqs. 2 and 3) with ``Ω_i = exp(τ(Φ_i - max Φ))``.
+
+    :param elites: ``(E, k, H, A)`` elite action sequences.
+    :param elite_returns: ``(E, k)`` their returns.
+    :return: ``μ`` and ``σ``, each ``(E, H, A)``.
+    """
+    omega = th.exp(temperature * (elite_returns - elite_returns.max(dim=1, keepdim=True).values))
+    weights = (omega / omega.sum(dim=1, keepdim=True))[:, :, None, None]
+    mean = (weights * elites).sum(dim=1)
+    std = th.sqrt((weights * (elites - mean.unsqueeze(1)) ** 2).sum(dim=1))
+    return mean, std
+
+
+class MPPIPlanner:
+    """Policy-guided MPPI with per-env warm start.
+
+    :param config: planner settings.
+    :param n_envs: number of envs planned for together.
+    :param action_dim: action size.
+    :param device: torch device of the model.
+    """
+
+    def __init__(self, config: MPPIConfig, n_envs: int, action_dim: int, device: th.device | str = "cpu") -> None:
+        self.config, self.n_envs, self.action_dim = config, n_envs, action_dim
+        self.device = th.device(device)
+        self.prev_mean = th.zeros(n_envs, config.horizon, action_dim, device=self.device)
+
+    def reset(self, episode_start: th.Tensor | None = None) -> None:
+        """Forget the warm start of the envs where an episode starts (all envs if ``episode_start`` is None)."""
+        if episode_start is None:
+            self.prev_mean.zero_()
+        else:
+            self.prev_mean[episode_start.to(self.device, th.bool)] = 0.0
+
+    def warm_start(self, horizon: int) -> th.Tensor:
+        """The previous plan's mean shifted by one step (its last step padded with 0), cut to ``horizon``."""
+        shifted = th.zeros_like(self.prev_mean)
+        shifted[:, :-1] = self.prev_mean[:, 1:]
+        return shifted[:, :horizon]
+
+    @th.inference_mode()
+    def plan(self, model: TOLD, obs: th.Tensor, step: int, deterministic: bool = False) -> th.Tensor:
+        """Plan one action per env (Alg. 2 lines 2–15).
+
+        :param model: the TOLD model.
+        :param obs: ``(E, obs_dim)`` observations.
+        :param step: training step, for the horizon and ``ε`` schedules.
+        :param deterministic: return ``μ_J``'s first action instead of a sample from ``N(μ_J, σ_J²)``.
+        :return: ``(E, A)`` actions in [-1, 1].
+        """
+        cfg, n_envs, adim = self.config, obs.shape[0], self.action_dim
+        horizon, min_std = cfg.horizon_at(step), cfg.min_std_at(step)
+        n, p = cfg.num_samples, cfg.num_policy_samples
+        if n_envs != self.prev_mean.shape[0]:  # a new batch size (e.g. predict on one obs): no warm start
+            self.prev_mean = th.zeros(n_envs, cfg.horizon, adim, device=self.device)
+        z = model.encode(obs)
+        pi_actions, pi_returns = policy_rollout(model, z.repeat_interleave(p, 0), horizon, cfg.gamma, cfg.policy_std)
+        pi_actions = pi_actions.view(horizon, n_envs, p, adim).permute(1, 2, 0, 3)
+        pi_returns = pi_returns.view(n_envs, p)
+        z_samples = z.repeat_interleave(n, 0)
+        mean = self.warm_start(horizon)
+        std = th.full_like(mean, cfg.max_std)
+        for _ in range(cfg.iterations):
+            noise = th.randn(n_envs, n, horizon, adim, device=z.device)
+            samples = (mean.unsqueeze(1) + std.unsqueeze(1) * noise).clamp(-1.0, 1.0)
+            flat = samples.permute(2, 0, 1, 3).reshape(horizon, n_envs * n, adim)
+            returns = trajectory_return(model, z_samples, flat, cfg.gamma, cfg.policy_std).view(n_envs, n)
+            all_actions, all_returns = th.cat([samples, pi_actions], 1), th.cat([returns, pi_returns], 1)
+            elite_returns, elite_idx = all_returns.topk(cfg.num_elites, dim=1)
+            elites = all_actions.gather(1, elite_idx[:, :, None, None].expand(-1, -1, horizon, adim))
+            new_mean, new_std = refit_gaussian(elites, elite_returns, cfg.temperature)
+            mean = cfg.momentum * mean + (1.0 - cfg.momentum) * new_mean
+            std = new_std.clamp(min_std, cfg.max_std)  # eq. 11: σ ≥ ε
+        self.prev_mean.zero_()
+        self.prev_mean[:, :horizon] = mean
+        action = mean[:, 0] if deterministic else mean[:, 0] + std[:, 0] * th.randn(n_envs, adim, device=z.device)
+        return action.clamp(-1.0, 1.0)

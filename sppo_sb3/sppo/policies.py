@@ -1,0 +1,178 @@
+"""TOLD — the task-oriented latent dynamics model of eq. 9 — and SPPO's policy wrapper around it.
+
+Five deterministic MLPs (TD-MPC sizes by default): encoder ``h(s) → z``, latent dynamics ``d(z, a) → z'``,
+reward ``R(z, a)``, twin value ``Q(z, a)`` and policy ``π(z) → a ∈ [-1, 1]``.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import PyTorchObs
+from torch import nn
+
+
+def mlp(in_dim: int, hidden: list[int], out_dim: int, activation: type[nn.Module] = nn.ELU) -> nn.Sequential:
+    """``Linear → activation`` for each hidden width, then a final ``Linear``."""
+    layers: list[nn.Module] = []
+    for width in hidden:
+        layers += [nn.Linear(in_dim, width), activation()]
+        in_dim = width
+    layers.append(nn.Linear(in_dim, out_dim))
+    return nn.Sequential(*layers)
+
+
+def q_network(in_dim: int, hidden_dim: int) -> nn.Sequential:
+    """TD-MPC's value head: ``Linear → LayerNorm → Tanh → Linear → ELU → Linear``."""
+    return nn.Sequential(
+        nn.Linear(in_dim, hidden_dim),
+        nn.LayerNorm(hidden_dim),
+        nn.Tanh(),
+        nn.Linear(hidden_dim, hidden_dim),
+        nn.ELU(),
+        nn.Linear(hidden_dim, 1),
+    )
+
+
+def orthogonal_init(module: nn.Module) -> None:
+    """Orthogonal weights and zero biases on every Linear layer (TD-MPC's initialisation)."""
+    if isinstance(module, nn.Linear):
+        nn.init.orthogonal_(module.weight)
+        nn.init.zeros_(module.bias)
+
+
+def zero_last_layer(net: nn.Sequential) -> None:
+    """Zero the output layer, so the reward and values start at exactly 0."""
+    last = net[-1]
+    assert isinstance(last, nn.Linear)
+    nn.init.zeros_(last.weight)
+    nn.init.zeros_(last.bias)
+
+
+class TOLD(nn.Module):
+    """The TOLD model of eq. 9.
+
+    :param obs_dim: flat observation size.
+    :param action_dim: action size (actions live in [-1, 1]).
+    :param latent_dim: size of the latent state ``z``.
+    :param encoder_dim: hidden width of the encoder ``h``.
+    :param hidden_dim: hidden width of ``d``, ``R``, ``π`` (two layers each) and ``Q``.
+    """
+
+    def __init__(self, obs_dim: int, action_dim: int, latent_dim: int = 50, encoder_dim: int = 256, hidden_dim: int = 512):
+        super().__init__()
+        self.latent_dim, self.action_dim = latent_dim, action_dim
+        self.encoder = mlp(obs_dim, [encoder_dim], latent_dim)
+        self.dynamics = mlp(latent_dim + action_dim, [hidden_dim, hidden_dim], latent_dim)
+        self.reward = mlp(latent_dim + action_dim, [hidden_dim, hidden_dim], 1)
+        self.pi = mlp(latent_dim, [hidden_dim, hidden_dim], action_dim)
+        self.q1 = q_network(latent_dim + action_dim, hidden_dim)
+        self.q2 = q_network(latent_dim + action_dim, hidden_dim)
+        self.apply(orthogonal_init)
+        for net in (self.reward, self.q1, self.q2):
+            zero_last_layer(net)
+
+    def encode(self, obs: th.Tensor) -> th.Tensor:
+        """Representation ``z = h(s)``."""
+        return self.encoder(obs)
+
+    def next(self, z: th.Tensor, action: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """Latent dynamics and reward: ``(d(z, a), R(z, a))``; the reward has shape ``(B, 1)``."""
+        za = th.cat([z, action], dim=-1)
+        return self.dynamics(za), self.reward(za)
+
+    def policy(self, z: th.Tensor, std: float = 0.0) -> th.Tensor:
+        """``π(z)`` squashed to [-1, 1]; with ``std > 0`` adds clipped Gaussian exploration noise (TD-MPC)."""
+        action = th.tanh(self.pi(z))
+        if std > 0:
+            noise = (th.randn_like(action) * std).clamp(-0.3, 0.3)
+            action = (action + noise).clamp(-1.0, 1.0)
+        return action
+
+    def q(self, z: th.Tensor, action: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
+        """Twin state-action values ``(Q1(z, a), Q2(z, a))``, each of shape ``(B, 1)``."""
+        za = th.cat([z, action], dim=-1)
+        return self.q1(za), self.q2(za)
+
+    def min_q(self, z: th.Tensor, action: th.Tensor) -> th.Tensor:
+        """``min(Q1, Q2)`` — the pessimistic value used by the planner and the policy loss."""
+        return th.min(*self.q(z, action))
+
+
+class TOLDPolicy(BasePolicy):
+    """SPPO's policy: the online TOLD model, its EMA target and their optimisers.
+
+    ``predict`` on the policy alone acts with the policy prior ``π(h(s))`` (fast deployment); ``SPPO.predict``
+    plans with MPPI and shields.
+
+    :param observation_space: a flat Box observation space.
+    :param action_space: a Box action space.
+    :param lr_schedule: learning-rate schedule (constant in TD-MPC).
+    :param latent_dim: size of ``z``.
+    :param encoder_dim: encoder hidden width.
+    :param hidden_dim: hidden width of the other networks.
+    """
+
+    def __init__(
+        self,
+        observation_space: spaces.Space,
+        action_space: spaces.Box,
+        lr_schedule: Any,
+        latent_dim: int = 50,
+        encoder_dim: int = 256,
+        hidden_dim: int = 512,
+        optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
+        optimizer_kwargs: dict[str, Any] | None = None,
+    ) -> None:
+        super().__init__(
+            observation_space,
+            action_space,
+            optimizer_class=optimizer_class,
+            optimizer_kwargs=optimizer_kwargs,
+            squash_output=True,
+            normalize_images=False,
+        )
+        self.latent_dim, self.encoder_dim, self.hidden_dim = latent_dim, encoder_dim, hidden_dim
+        obs_dim = int(spaces.flatdim(observation_space))
+        action_dim = int(action_space.shape[0])
+        self.model = TOLD(obs_dim, action_dim, latent_dim, encoder_dim, hidden_dim)
+        self.model_target = copy.deepcopy(self.model)
+        self.model_target.requires_grad_(False)
+        model_params = [p for name, p in self.model.named_parameters() if not name.startswith("pi.")]
+        self.optimizer = optimizer_class(model_params, lr=lr_schedule(1), **self.optimizer_kwargs)
+        self.pi_optimizer = optimizer_class(self.model.pi.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(
+            latent_dim=self.latent_dim,
+            encoder_dim=self.encoder_dim,
+            hidden_dim=self.hidden_dim,
+            lr_schedule=self._dummy_schedule,
+            optimizer_class=self.optimizer_class,
+            optimizer_kwargs=self.optimizer_kwargs,
+        )
+        return data
+
+    @staticmethod
+    def _dummy_schedule(_: float) -> float:
+        return 0.0
+
+    def forward(self, obs: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        return self._predict(obs, deterministic)
+
+    def _predict(self, observation: PyTorchObs, deterministic: bool = True) -> th.Tensor:
+        """The policy prior ``π(h(s))`` in [-1, 1] (no planning)."""
+        assert isinstance(observation, th.Tensor)
+        return self.model.policy(self.model.encode(observation.float()))
+
+    def set_training_mode(self, mode: bool) -> None:
+        self.model.train(mode)
+        self.training = mode
+
+
+MlpPolicy = TOLDPolicy

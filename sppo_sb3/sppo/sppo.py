@@ -1,0 +1,354 @@
+"""SPPO — Shielded Planning guided Policy Optimization (Alg. 1), as a Stable-Baselines3 off-policy algorithm.
+
+Read top to bottom: ``collect_rollouts`` is Alg. 1's exploration phase (plan with MPPI, shield every executed
+action, store ``B`` and its relabel ``B̃``); ``train`` is its training phase (TOPO on ``B̃``, EMA targets);
+``predict`` is deployment (plan, then shield).
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar, TypeVar
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, RolloutReturn, Schedule, TrainFreq
+from stable_baselines3.common.utils import obs_as_tensor, polyak_update, should_collect_more_steps
+from stable_baselines3.common.vec_env import VecEnv
+
+from sppo_sb3.common.costs import costs_from_infos
+from sppo_sb3.common.safety import INTERVENED_KEY, SafetyMetrics
+from sppo_sb3.shield import ShieldingRule, default_shielding_rule
+from sppo_sb3.shield.wrapper import PROPOSED_ACTION_KEY
+from sppo_sb3.sppo.buffers import AbsorbingMode, ShieldedReplayBuffer
+from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
+from sppo_sb3.sppo.policies import TOLDPolicy
+from sppo_sb3.sppo.topo import TOPOConfig, topo_update
+
+SelfSPPO = TypeVar("SelfSPPO", bound="SPPO")
+
+
+def check_spaces(observation_space: spaces.Space, action_space: spaces.Space) -> None:
+    """Reject, with a message that says what to do, the spaces SPPO cannot handle."""
+    if not isinstance(action_space, spaces.Box):
+        raise TypeError(
+            f"SPPO plans continuous actions and needs a Box action space, got {action_space}. "
+            "For discrete actions use an algorithm such as SB3's DQN or PPO."
+        )
+    if not (np.all(np.isfinite(action_space.low)) and np.all(np.isfinite(action_space.high))):
+        raise ValueError(
+            f"SPPO needs finite action bounds to rescale its [-1, 1] plans, got low={action_space.low}, "
+            f"high={action_space.high}. Clip the action space (e.g. gymnasium.wrappers.ClipAction) first."
+        )
+    if not isinstance(observation_space, spaces.Box) or len(observation_space.shape) != 1:
+        raise TypeError(
+            f"SPPO's TOLD encoder is an MLP on flat state vectors, got observation space {observation_space}. "
+            "Flatten Dict observations (gymnasium.wrappers.FlattenObservation); image observations are not supported."
+        )
+
+
+class SPPO(OffPolicyAlgorithm):
+    """Shielded Planning guided Policy Optimization (Wang, Qin & Kan).
+
+    Defaults are TD-MPC's (SPEC §2). ``planner_kwargs`` are fields of :class:`MPPIConfig`, ``topo_kwargs`` fields of
+    :class:`TOPOConfig`; ``policy_kwargs`` set the TOLD sizes (``latent_dim``, ``encoder_dim``, ``hidden_dim``).
+
+    :param policy: ``"TOLDPolicy"`` (alias ``"MlpPolicy"``) or a policy class.
+    :param env: the environment (a gymnasium env, a registered id, or a VecEnv).
+    :param learning_rate: Adam learning rate of the model and of the policy.
+    :param buffer_size: replay buffer size (``B`` and ``B̃`` share it).
+    :param learning_starts: warm-up steps with random (shielded) actions before planning and training.
+    :param batch_size: sequences per TOPO update.
+    :param tau: EMA coefficient of the target network (Alg. 3 line 13).
+    :param gamma: discount.
+    :param train_freq: update the model every ``train_freq`` steps.
+    :param gradient_steps: TOPO updates per rollout.
+    :param horizon: length ``H`` of the sequences TOPO trains on.
+    :param target_update_interval: update the EMA target every this many TOPO updates.
+    :param shield: a :class:`ShieldingRule`, ``"auto"`` (the task's registered rule, none if it has none) or ``None``.
+    :param absorbing: ``"terminate"`` (paper) or ``"restart"``: what ``B̃`` records after an intervention.
+    :param absorbing_penalty: ``R̃`` of eq. 7; defaults to the rule's ``penalty``.
+    :param planner_kwargs: :class:`MPPIConfig` overrides.
+    :param topo_kwargs: :class:`TOPOConfig` overrides.
+    :param plan_at_predict: ``predict`` plans with MPPI (``True``) or acts with the policy prior alone (fast).
+    :param shield_at_predict: ``predict`` passes its actions through the shield.
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"TOLDPolicy": TOLDPolicy, "MlpPolicy": TOLDPolicy}
+    policy: TOLDPolicy
+    replay_buffer: ShieldedReplayBuffer
+
+    def __init__(
+        self,
+        policy: str | type[TOLDPolicy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = 1e-3,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 5000,
+        batch_size: int = 512,
+        tau: float = 0.01,
+        gamma: float = 0.99,
+        train_freq: int | tuple[int, str] = 1,
+        gradient_steps: int = 1,
+        horizon: int = 5,
+        target_update_interval: int = 2,
+        shield: ShieldingRule | str | None = "auto",
+        absorbing: AbsorbingMode = "terminate",
+        absorbing_penalty: float | None = None,
+        planner_kwargs: dict[str, Any] | None = None,
+        topo_kwargs: dict[str, Any] | None = None,
+        plan_at_predict: bool = True,
+        shield_at_predict: bool = True,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        super().__init__(
+            policy,
+            env,
+            learning_rate,
+            buffer_size=buffer_size,
+            learning_starts=learning_starts,
+            batch_size=batch_size,
+            tau=tau,
+            gamma=gamma,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
+            replay_buffer_class=ShieldedReplayBuffer,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            policy_kwargs=policy_kwargs,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            verbose=verbose,
+            device=device,
+            seed=seed,
+            sde_support=False,
+            support_multi_env=True,
+        )
+        self.horizon = horizon
+        self.target_update_interval = target_update_interval
+        self.shield = shield
+        self.absorbing = absorbing
+        self.absorbing_penalty = absorbing_penalty
+        self.planner_config = MPPIConfig(**{"gamma": gamma, "horizon": horizon, **(planner_kwargs or {})})
+        self.topo_config = TOPOConfig(**{"gamma": gamma, **(topo_kwargs or {})})
+        self.plan_at_predict = plan_at_predict
+        self.shield_at_predict = shield_at_predict
+        self.shield_rule: ShieldingRule | None = None
+        self.safety_metrics: SafetyMetrics | None = None
+        if _init_setup_model:
+            self._setup_model()
+
+    # ------------------------------------------------------------------ set-up
+    def _setup_model(self) -> None:
+        check_spaces(self.observation_space, self.action_space)
+        self._setup_lr_schedule()
+        self.set_random_seed(self.seed)
+        self.policy = self.policy_class(self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs)
+        self.policy = self.policy.to(self.device)
+        self._convert_train_freq()
+        if self.shield_rule is None:
+            self.shield_rule = self._resolve_shield()
+        if self.env is not None:  # deployment-only loads do not allocate the training buffer
+            self._setup_replay_buffer()
+        self.planner = MPPIPlanner(self.planner_config, self.n_envs, self.action_space.shape[0], self.device)
+        warm_start = getattr(self, "planner_warm_start", None)
+        if warm_start is not None and warm_start.shape == tuple(self.planner.prev_mean.shape):
+            self.planner.prev_mean.copy_(th.as_tensor(warm_start))
+        if self.safety_metrics is None:
+            self.safety_metrics = SafetyMetrics(self.n_envs, window=self._stats_window_size)
+        self.safety_metrics.resize(self.n_envs)
+
+    def _resolve_shield(self) -> ShieldingRule | None:
+        if isinstance(self.shield, ShieldingRule) or self.shield is None:
+            return self.shield
+        if self.shield != "auto":
+            raise ValueError(f"shield must be a ShieldingRule, 'auto' or None, got {self.shield!r}.")
+        if self.env is None:
+            return None
+        spec = self.env.get_attr("spec", [0])[0]
+        return default_shielding_rule(spec.id if spec is not None else None)
+
+    def _setup_replay_buffer(self) -> None:
+        if self.replay_buffer is not None:
+            return
+        penalty = self.absorbing_penalty
+        if penalty is None:
+            penalty = self.shield_rule.penalty if self.shield_rule is not None else -1.0
+        kwargs = {"absorbing": self.absorbing, "penalty": penalty, **self.replay_buffer_kwargs}
+        self.replay_buffer = ShieldedReplayBuffer(
+            self.buffer_size, self.observation_space, self.action_space, device=self.device, n_envs=self.n_envs, **kwargs
+        )
+
+    def _setup_learn(self, total_timesteps: int, callback: MaybeCallback = None, reset_num_timesteps: bool = True,
+                     tb_log_name: str = "run", progress_bar: bool = False) -> tuple[int, BaseCallback]:  # fmt: skip
+        self._setup_replay_buffer()
+        if self.shield_rule is not None and self.env is not None:
+            self.shield_rule.check_action_space(self.action_space, self.env.observation_space.sample()[None])
+        return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+
+    # ------------------------------------------------------------------ exploration phase (Alg. 1 lines 3–9)
+    def _propose_actions(self, obs: np.ndarray, learning_starts: int) -> np.ndarray:
+        """The unshielded planner's actions in [-1, 1]: uniform during warm-up, MPPI afterwards (Alg. 2)."""
+        if self.num_timesteps < learning_starts:
+            return np.random.uniform(-1.0, 1.0, size=(len(obs), *self.action_space.shape)).astype(np.float32)
+        obs_tensor = obs_as_tensor(obs, self.device).float()
+        return self.planner.plan(self.policy.model, obs_tensor, self.num_timesteps, deterministic=False).cpu().numpy()
+
+    def _shield(self, raw_obs: np.ndarray, env_actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Eq. 12 on every env at once: the executed actions (env units) and where the shield intervened."""
+        if self.shield_rule is None:
+            return env_actions, np.zeros(len(env_actions), dtype=bool)
+        decision = self.shield_rule.shield(raw_obs, env_actions)
+        return decision.actions.astype(self.action_space.dtype), decision.intervened
+
+    def collect_rollouts(
+        self,
+        env: VecEnv,
+        callback: BaseCallback,
+        train_freq: TrainFreq,
+        replay_buffer: ReplayBuffer,
+        action_noise: Any = None,
+        learning_starts: int = 0,
+        log_interval: int | None = None,
+    ) -> RolloutReturn:
+        """Shielded planning in the real env (Alg. 1 lines 3–9): every executed action — warm-up ones too — is safe."""
+        assert self._last_obs is not None and self.safety_metrics is not None
+        self.policy.set_training_mode(False)
+        num_collected_steps, num_collected_episodes = 0, 0
+        callback.on_rollout_start()
+        while should_collect_more_steps(train_freq, num_collected_steps, num_collected_episodes):
+            raw_obs = self._last_original_obs if self._vec_normalize_env is not None else self._last_obs
+            proposed = self._propose_actions(self._last_obs, learning_starts)  # type: ignore[arg-type]
+            proposed_env = self.policy.unscale_action(proposed)
+            actions, intervened = self._shield(raw_obs, proposed_env)  # type: ignore[arg-type]
+
+            new_obs, rewards, dones, infos = env.step(actions)
+            check_finite(new_obs, rewards)
+            for info, shielded, wanted in zip(infos, intervened, proposed_env):
+                info[INTERVENED_KEY], info[PROPOSED_ACTION_KEY] = bool(shielded), wanted
+            self.num_timesteps += env.num_envs
+            num_collected_steps += 1
+            callback.update_locals(locals())
+            if not callback.on_step():
+                return RolloutReturn(num_collected_steps * env.num_envs, num_collected_episodes, continue_training=False)
+
+            costs = costs_from_infos(infos) if self.shield_rule is not None else _optional_costs(infos)
+            self.safety_metrics.update(rewards, costs, dones, intervened)
+            self._update_info_buffer(infos, dones)
+            self._store_transition(replay_buffer, self.policy.scale_action(actions), new_obs, rewards, dones, infos)
+            self._update_current_progress_remaining(self.num_timesteps, self._total_timesteps)
+            self.planner.reset(th.as_tensor(dones))  # a new episode starts without a warm start
+            for done in dones:
+                if done:
+                    num_collected_episodes += 1
+                    self._episode_num += 1
+                    if log_interval is not None and self._episode_num % log_interval == 0:
+                        self.dump_logs()
+        callback.on_rollout_end()
+        return RolloutReturn(num_collected_steps * env.num_envs, num_collected_episodes, continue_training=True)
+
+    # ------------------------------------------------------------------ training phase (Alg. 1 lines 10–13)
+    def train(self, gradient_steps: int, batch_size: int) -> None:
+        """TOPO on sequences of ``B̃`` (Alg. 3), EMA target every ``target_update_interval`` updates."""
+        self.policy.set_training_mode(True)
+        self._update_learning_rate([self.policy.optimizer, self.policy.pi_optimizer])
+        model, target = self.policy.model, self.policy.model_target
+        logs: dict[str, list[float]] = {}
+        for _ in range(gradient_steps):
+            batch = self.replay_buffer.sample_sequences(batch_size, self.horizon, env=self._vec_normalize_env)
+            for key, value in topo_update(model, target, self.policy.optimizer, self.policy.pi_optimizer, batch,
+                                          self.topo_config).items():  # fmt: skip
+                logs.setdefault(key, []).append(value)
+            self._n_updates += 1
+            if self._n_updates % self.target_update_interval == 0:
+                polyak_update(model.parameters(), target.parameters(), self.tau)
+        self.policy.set_training_mode(False)
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record("train/horizon", self.planner_config.horizon_at(self.num_timesteps))
+        self.logger.record("train/min_std", self.planner_config.min_std_at(self.num_timesteps))
+        for key, values in logs.items():
+            self.logger.record(f"train/{key}", float(np.mean(values)))
+
+    def dump_logs(self) -> None:
+        assert self.safety_metrics is not None
+        self.safety_metrics.record(self.logger)
+        super().dump_logs()
+
+    # ------------------------------------------------------------------ deployment
+    def predict(
+        self,
+        observation: np.ndarray | dict[str, np.ndarray],
+        state: tuple[np.ndarray, ...] | None = None,
+        episode_start: np.ndarray | None = None,
+        deterministic: bool = False,
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
+        """Plan with MPPI (or the policy prior if ``plan_at_predict`` is False), then shield.
+
+        ``episode_start`` resets the planner's warm start of the envs that begin an episode. The observation is
+        one the env returns (normalised under ``VecNormalize``; the shield reads its unnormalised version).
+        MPPI samples with torch's RNG: seed it (``torch.manual_seed``) for repeatable plans.
+        """
+        obs = np.asarray(observation, dtype=np.float32)
+        vectorized = obs.ndim == 2
+        obs = obs.reshape(-1, *self.observation_space.shape)
+        if episode_start is not None:
+            self.planner.reset(th.as_tensor(np.asarray(episode_start, dtype=bool).reshape(-1)))
+        raw_obs = self._vec_normalize_env.unnormalize_obs(obs) if self._vec_normalize_env is not None else obs
+        obs_tensor = obs_as_tensor(obs, self.device).float()
+        if self.plan_at_predict:
+            scaled = self.planner.plan(self.policy.model, obs_tensor, self.num_timesteps, deterministic=deterministic)
+        else:
+            with th.no_grad():
+                scaled = self.policy._predict(obs_tensor)
+        actions = self.policy.unscale_action(scaled.cpu().numpy())
+        if self.shield_at_predict:
+            actions, _ = self._shield(raw_obs, actions)
+        actions = np.clip(actions, self.action_space.low, self.action_space.high)
+        return (actions if vectorized else actions[0]), None
+
+    def learn(
+        self: SelfSPPO,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 4,
+        tb_log_name: str = "SPPO",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfSPPO:
+        return super().learn(total_timesteps, callback, log_interval, tb_log_name, reset_num_timesteps, progress_bar)
+
+    # ------------------------------------------------------------------ persistence
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "planner"]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        return ["policy", "policy.optimizer", "policy.pi_optimizer"], []
+
+    def save(self, path: Any, exclude: Any = None, include: Any = None) -> None:
+        """Save as SB3 does, with the planner's warm start, so a loaded model plans exactly as the saved one."""
+        self.planner_warm_start = self.planner.prev_mean.cpu().numpy()
+        super().save(path, exclude, include)
+
+
+def check_finite(obs: np.ndarray, rewards: np.ndarray) -> None:
+    """Stop with a clear error when the env returns NaN/inf, before it poisons the replay buffer."""
+    if not (np.all(np.isfinite(obs)) and np.all(np.isfinite(rewards))):
+        raise ValueError(
+            "The environment returned a non-finite observation or reward. SPPO cannot learn from NaN/inf: check the "
+            "env's dynamics or wrap it with stable_baselines3.common.vec_env.VecCheckNan to find the step."
+        )
+
+
+def _optional_costs(infos: list[dict[str, Any]]) -> np.ndarray:
+    """Costs for an unshielded run: ``info["cost"]`` where the env reports it, 0 elsewhere (e.g. Pendulum-v1)."""
+    return np.array([float(info.get("cost", 0.0)) for info in infos], dtype=np.float32)
