@@ -5,11 +5,14 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from sppo_sb3.shield.base import ShieldDecision, ShieldingRule, in_shielding_set
+from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule
+from sppo_sb3.shield.learned import LearnedCostCriticRule
 from sppo_sb3.shield.point import PointCircleShieldingRule
 from sppo_sb3.shield.wrapper import ShieldWrapper
 
 SHIELDING_RULES: dict[str, Callable[[], ShieldingRule]] = {
     "SafePointCircle-v0": PointCircleShieldingRule,
+    "SafeHalfCheetahHeight-v0": HalfCheetahHeightShieldingRule,
 }
 
 
@@ -26,6 +29,8 @@ def default_shielding_rule(env_id: str | None) -> ShieldingRule | None:
 
 __all__ = [
     "SHIELDING_RULES",
+    "HalfCheetahHeightShieldingRule",
+    "LearnedCostCriticRule",
     "PointCircleShieldingRule",
     "ShieldDecision",
     "ShieldWrapper",

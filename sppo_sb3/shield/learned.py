@@ -1,0 +1,268 @@
+"""A learned shielding rule for tasks without a model: ``Q̄`` is a cost critic fitted on real transitions.
+
+This is Alg. 1 line 12 (``G ← UpdateShieldingRule(B)``, optional): the backup policy ``ζ`` must be known (it is the
+user's safe fallback, e.g. "brake"); only ``Q̄`` — the discounted shaped cost of taking ``a`` and following ``ζ``
+afterwards — is learned, by fitted policy evaluation of ``ζ`` on the transitions of the real buffer ``B``.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch as th
+from stable_baselines3.common.utils import get_device
+from torch import nn
+
+from sppo_sb3.shield.base import ShieldingRule
+
+BackupPolicy = Callable[[np.ndarray], np.ndarray]
+
+
+def _bounds_scaler(space: gym.spaces.Box) -> tuple[np.ndarray, np.ndarray]:
+    """Centre and half-width mapping ``space`` onto ``[-1, 1]`` per dimension (identity where a bound is infinite)."""
+    low, high = space.low.astype(np.float64).ravel(), space.high.astype(np.float64).ravel()
+    finite = np.isfinite(low) & np.isfinite(high) & (high > low)
+    centre = np.where(finite, (high + low) / 2.0, 0.0)
+    half = np.where(finite, (high - low) / 2.0, 1.0)
+    return centre, half
+
+
+class LearnedCostCriticRule(ShieldingRule):
+    """Shielding rule ``G = (Q̄, ζ, Ā, η, I)`` with a known backup ``ζ`` and an MLP cost critic ``Q̄(s, a)``.
+
+    ``Q̄`` is fitted by the backup's Bellman targets on real transitions ``(s, a, ĉ, s', done)`` of the buffer ``B``:
+
+    ``Q̄(s, a) ← clip(ĉ(s, a) + γ·(1 - done)·Q̄⁻(s', ζ(s')), 0, γ)``
+
+    where ``Q̄⁻`` is an EMA target copy of the critic. Targets and predictions are clamped to ``[0, γ]``, the range of
+    Definition 2 (a β-adoptable rule); by Proposition 2.3 a critic within ``δ`` of an adoptable ``Q̄`` gives a
+    ``(β + (1 + γ)δ)``-adoptable rule. With ``η >= 0`` the backup action is never shielded (Proposition 1) whatever the
+    weights are: :meth:`advantage` evaluates ``Q̄(s, a)`` and ``Q̄(s, ζ(s))`` in two forward passes of the same shape,
+    so that ``a = ζ(s)`` gives ``Ā = 0`` exactly.
+
+    **The shaped cost it expects** (``shaped_costs`` of :meth:`update`): ``ĉ`` of eq. 18 for the step,
+    ``ĉ = 1[dist = 0]`` if ``α = 0`` else ``max(0, 1 - dist / α)``, with ``dist`` the distance from the state the
+    step leads to (``s'``) to the unsafe set — e.g. ``info["shaped_cost"]`` of ``SafePointCircle-v0``. A step that
+    enters the unsafe set has ``ĉ = 1`` and must be passed with ``done = True`` (the unsafe set is absorbing).
+    Because values are clamped at ``γ``, a wide band ``α`` saturates ``Q̄`` near the unsafe set, where the shield then
+    cannot rank actions any more (``Ā = 0``): prefer ``α = 0`` or a narrow band, or pass ``γ·(1 - γ)·ĉ``, whose
+    discounted sum never exceeds ``γ``. ``done`` must be termination only, not a time-limit truncation.
+
+    A learned ``Q̄`` carries approximation error, so with ``η = 0`` tiny positive ``Ā`` between equally safe actions
+    get shielded: choose ``η`` above the critic's error (the paper uses ``η = 0.2`` where ``Q̄`` is approximate).
+
+    Observations and actions are rescaled to ``[-1, 1]`` with the spaces' bounds where those are finite.
+
+    :param observation_space: the env's (flat, Box) observation space; the rule reads raw observations.
+    :param action_space: the env's Box action space.
+    :param backup_policy: the known backup ``ζ``: ``obs`` ``(B, obs_dim)`` ndarray → ``(B, act_dim)`` ndarray of actions
+        in the env's action units, inside the action space.
+    :param gamma: discount of ``Q̄``; also the upper clamp of Definition 2.
+    :param eta: advantage threshold ``η >= 0``.
+    :param penalty: absorbing reward ``R̃ <= 0`` of eq. 7.
+    :param net_arch: hidden layer sizes of the critic MLP (ReLU).
+    :param lr: Adam learning rate.
+    :param tau: EMA coefficient of the target critic, applied after every gradient step.
+    :param device: torch device (``"auto"``: CUDA when available).
+    :param seed: seeds the critic's initial weights and the minibatch sampling (``None``: not seeded).
+    """
+
+    def __init__(
+        self,
+        observation_space: gym.spaces.Space,
+        action_space: gym.spaces.Space,
+        backup_policy: BackupPolicy,
+        gamma: float = 0.99,
+        eta: float = 0.0,
+        penalty: float = -1.0,
+        net_arch: Sequence[int] = (64, 64),
+        lr: float = 1e-3,
+        tau: float = 0.01,
+        device: th.device | str = "auto",
+        seed: int | None = None,
+    ) -> None:
+        super().__init__(eta=eta, penalty=penalty)
+        if not isinstance(observation_space, gym.spaces.Box):
+            raise TypeError(f"LearnedCostCriticRule needs a flat Box observation space, got {observation_space}.")
+        if not isinstance(action_space, gym.spaces.Box):
+            raise TypeError(f"Shielding rules act on Box action spaces, got {action_space}.")
+        if not callable(backup_policy):
+            raise TypeError(
+                f"backup_policy must be a callable obs (B, obs_dim) -> actions (B, act_dim), got {backup_policy!r}"
+            )
+        if not 0.0 < gamma < 1.0:
+            raise ValueError(f"gamma must be in (0, 1), got {gamma}.")
+        if not 0.0 < tau <= 1.0:
+            raise ValueError(f"tau must be in (0, 1], got {tau}.")
+        self.observation_space = observation_space
+        self.action_space = action_space
+        self.backup_policy = backup_policy
+        self.gamma = float(gamma)
+        self.tau = float(tau)
+        self.net_arch = tuple(int(n) for n in net_arch)
+        self.lr = float(lr)
+        self.device = get_device(device)
+        self.obs_dim = int(np.prod(observation_space.shape))
+        self.act_dim = int(np.prod(action_space.shape))
+        self._obs_centre, self._obs_half = _bounds_scaler(observation_space)
+        self._act_centre, self._act_half = _bounds_scaler(action_space)
+        self._rng = np.random.default_rng(seed)
+
+        if seed is None:
+            self.critic = self._build_critic()
+        else:
+            with th.random.fork_rng(devices=[]):
+                th.manual_seed(seed)
+                self.critic = self._build_critic()
+        self.critic_target = copy.deepcopy(self.critic)
+        self.critic_target.requires_grad_(False)
+        self.optimizer = th.optim.Adam(self.critic.parameters(), lr=self.lr)
+
+    def _build_critic(self) -> nn.Sequential:
+        layers: list[nn.Module] = []
+        in_dim = self.obs_dim + self.act_dim
+        for width in self.net_arch:
+            layers += [nn.Linear(in_dim, width), nn.ReLU()]
+            in_dim = width
+        head = nn.Linear(in_dim, 1)
+        # zero-initialised output (as TD-MPC's Q heads): Q̄ ≡ 0 before learning, so no initial bias has to be unlearnt
+        # at the slow rate γ per backup in the states the backup keeps cost-free forever
+        nn.init.zeros_(head.weight)
+        nn.init.zeros_(head.bias)
+        return nn.Sequential(*layers, head).to(self.device)
+
+    # ----------------------------------------------------------------------------------------------- evaluation
+    def _inputs(self, obs: np.ndarray, actions: np.ndarray) -> th.Tensor:
+        """Critic input ``[s, a]`` with both parts rescaled to ``[-1, 1]`` by the spaces' bounds."""
+        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
+        actions = np.asarray(actions, dtype=np.float64).reshape(len(actions), -1)
+        if obs.shape[1] != self.obs_dim or actions.shape[1] != self.act_dim:
+            raise ValueError(
+                f"LearnedCostCriticRule was built for observations of size {self.obs_dim} and actions of size "
+                f"{self.act_dim}, got {obs.shape[1]} and {actions.shape[1]}."
+            )
+        obs = (obs - self._obs_centre) / self._obs_half
+        actions = (actions - self._act_centre) / self._act_half
+        return th.as_tensor(np.concatenate([obs, actions], axis=1), dtype=th.float32, device=self.device)
+
+    def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """``Q̄(s, a) ∈ [0, γ]`` of the critic for a batch: ``(B, obs_dim)``, ``(B, act_dim)`` → ``(B,)`` float64."""
+        with th.no_grad():
+            raw = self.critic(self._inputs(obs, actions)).squeeze(-1).cpu().numpy().astype(np.float64)
+        return np.clip(raw, 0.0, self.gamma)  # in float64: a float32 γ would round above γ
+
+    def backup_action(self, obs: np.ndarray) -> np.ndarray:
+        """The user's backup ``ζ(s)`` for a batch, as a float64 ``(B, act_dim)`` array (checked by ``check_action_space``)."""
+        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
+        return np.asarray(self.backup_policy(obs), dtype=np.float64)
+
+    def advantage(self, obs: np.ndarray, actions: np.ndarray, backup: np.ndarray | None = None) -> np.ndarray:
+        """``Ā(s, a) = Q̄(s, a) - Q̄(s, ζ(s))``.
+
+        Unlike the base class, the two terms come from two forward passes of the same batch shape: a concatenated
+        batch may compute a row differently depending on its position, and ``Ā(s, ζ(s))`` must be exactly 0 for
+        Proposition 1 to hold.
+        """
+        if backup is None:
+            backup = self.backup_action(obs)
+        return self.cost_value(obs, actions) - self.cost_value(obs, backup)
+
+    # ----------------------------------------------------------------------------------------------- learning
+    def update(
+        self,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        shaped_costs: np.ndarray,
+        next_obs: np.ndarray,
+        dones: np.ndarray,
+        gradient_steps: int = 1,
+        batch_size: int = 256,
+    ) -> float:
+        """Fit ``Q̄`` on real transitions of ``B`` (Alg. 1 line 12) with the backup's clamped Bellman targets.
+
+        Each gradient step regresses ``Q̄(s, a)`` on ``clip(ĉ + γ·(1 - done)·Q̄⁻(s', ζ(s')), 0, γ)`` over a
+        minibatch of ``batch_size`` transitions drawn from the given arrays (all of them when there are fewer), then
+        moves the target critic ``Q̄⁻`` by EMA with ``tau``.
+
+        :param obs: ``(N, obs_dim)`` raw observations ``s``.
+        :param actions: ``(N, act_dim)`` executed actions ``a`` (the safe ones), in env action units.
+        :param shaped_costs: ``(N,)`` shaped costs ``ĉ`` of eq. 18 of each step (see the class docstring).
+        :param next_obs: ``(N, obs_dim)`` next observations ``s'``.
+        :param dones: ``(N,)`` terminations (entering the unsafe set); not time-limit truncations.
+        :param gradient_steps: number of gradient steps.
+        :param batch_size: minibatch size of each step.
+        :return: the mean squared TD error over the gradient steps.
+        """
+        n = len(obs)
+        shaped_costs = np.asarray(shaped_costs, dtype=np.float64).reshape(-1)
+        dones = np.asarray(dones, dtype=np.float64).reshape(-1)
+        if not (len(actions) == len(next_obs) == len(shaped_costs) == len(dones) == n) or n == 0:
+            raise ValueError(
+                f"update() needs non-empty arrays of one length, got obs {len(obs)}, actions {len(actions)}, "
+                f"shaped_costs {len(shaped_costs)}, next_obs {len(next_obs)}, dones {len(dones)}."
+            )
+        if not np.all(np.isfinite(shaped_costs)) or np.any(shaped_costs < 0):
+            raise ValueError("shaped_costs must be finite and >= 0 (the shaped cost of eq. 18 lies in [0, 1]).")
+        # ζ(s') is fixed during the update: compute it once for the whole batch
+        next_backup = self.backup_action(next_obs)
+        obs = np.asarray(obs, dtype=np.float64).reshape(n, -1)
+        actions = np.asarray(actions, dtype=np.float64).reshape(n, -1)
+        next_obs = np.asarray(next_obs, dtype=np.float64).reshape(n, -1)
+        costs_t = th.as_tensor(shaped_costs, dtype=th.float32, device=self.device)
+        dones_t = th.as_tensor(dones, dtype=th.float32, device=self.device)
+
+        losses = []
+        for _ in range(gradient_steps):
+            idx = self._rng.choice(n, size=batch_size, replace=False) if n > batch_size else np.arange(n)
+            with th.no_grad():
+                next_q = self.critic_target(self._inputs(next_obs[idx], next_backup[idx])).squeeze(-1).clamp(0.0, self.gamma)
+                target = (costs_t[idx] + self.gamma * (1.0 - dones_t[idx]) * next_q).clamp(0.0, self.gamma)
+            # regress the raw output (not the clamped one) so that the gradient does not vanish outside [0, γ]
+            pred = self.critic(self._inputs(obs[idx], actions[idx])).squeeze(-1)
+            loss = nn.functional.mse_loss(pred, target)
+            self.optimizer.zero_grad()
+            loss.backward()
+            self.optimizer.step()
+            with th.no_grad():
+                for param, target_param in zip(self.critic.parameters(), self.critic_target.parameters()):
+                    target_param.mul_(1.0 - self.tau).add_(param, alpha=self.tau)
+            losses.append(loss.item())
+        return float(np.mean(losses)) if losses else 0.0
+
+    # ----------------------------------------------------------------------------------------------- persistence
+    def state_dict(self) -> dict[str, Any]:
+        """Critic, target critic and optimiser states plus the settings they depend on (``torch.save``-able).
+
+        The backup policy is code, not state: pass it again to the constructor before :meth:`load_state_dict`.
+        """
+        return {
+            "critic": self.critic.state_dict(),
+            "critic_target": self.critic_target.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "obs_dim": self.obs_dim,
+            "act_dim": self.act_dim,
+            "net_arch": self.net_arch,
+            "gamma": self.gamma,
+            "eta": self.eta,
+            "tau": self.tau,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore a :meth:`state_dict`; the rule must have been built for the same spaces and ``net_arch``.
+
+        :raises ValueError: when the saved critic was built for other spaces or another architecture.
+        """
+        saved = (state.get("obs_dim"), state.get("act_dim"), tuple(state.get("net_arch", ())))
+        if saved != (self.obs_dim, self.act_dim, self.net_arch):
+            raise ValueError(
+                f"Cannot load a cost critic for obs_dim, act_dim, net_arch = {saved} into a rule built for "
+                f"{(self.obs_dim, self.act_dim, self.net_arch)}: construct the rule with the same spaces and net_arch."
+            )
+        self.critic.load_state_dict(state["critic"])
+        self.critic_target.load_state_dict(state["critic_target"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.gamma, self.eta, self.tau = float(state["gamma"]), float(state["eta"]), float(state["tau"])
