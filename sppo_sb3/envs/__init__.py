@@ -6,5 +6,11 @@ from sppo_sb3.envs.point_circle import PointParams, SafePointCircleEnv
 
 if "SafePointCircle-v0" not in registry:
     register(id="SafePointCircle-v0", entry_point="sppo_sb3.envs.point_circle:SafePointCircleEnv", max_episode_steps=500)
+if "SafeHalfCheetahHeight-v0" not in registry:
+    register(
+        id="SafeHalfCheetahHeight-v0",
+        entry_point="sppo_sb3.envs.half_cheetah_height:SafeHalfCheetahHeightEnv",
+        max_episode_steps=1000,
+    )
 
 __all__ = ["PointParams", "SafePointCircleEnv"]
