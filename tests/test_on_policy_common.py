@@ -1,0 +1,133 @@
+"""The shared cost-aware on-policy machinery: cost GAE, the cost buffer, the cost critic head, the tracker, errors."""
+
+from __future__ import annotations
+
+import contextlib
+
+import numpy as np
+import pytest
+import torch as th
+from gymnasium import spaces
+from stable_baselines3.common.buffers import RolloutBuffer
+
+import sppo_sb3  # noqa: F401  (registers the tasks)
+from sppo_sb3.common.costs import MissingCostError
+from sppo_sb3.common.on_policy import CostActorCriticPolicy, CostRolloutBuffer, EpisodeCostTracker, compute_gae
+from sppo_sb3.cpo import CPO
+from sppo_sb3.pdo import PDO
+from sppo_sb3.sailr import SAILR
+
+TINY = dict(net_arch=[16])
+
+
+def test_cost_gae_hand_computed() -> None:
+    # one env, 3 steps, an episode boundary before step 2; gamma = 0.5, lambda = 0.5
+    costs = np.array([[1.0], [0.0], [1.0]])
+    values = np.array([[0.5], [1.0], [0.25]])
+    starts = np.array([[1.0], [0.0], [1.0]])
+    adv, ret = compute_gae(costs, values, starts, last_values=np.array([2.0]), dones=np.array([False]), gamma=0.5, gae_lambda=0.5)
+    # step 2: δ = 1 + 0.5·2 - 0.25 = 1.75, A = 1.75
+    # step 1: next step starts an episode → δ = 0 - 1 = -1, A = -1
+    # step 0: δ = 1 + 0.5·1 - 0.5 = 1, A = 1 + 0.25·(-1) = 0.75
+    np.testing.assert_allclose(adv[:, 0], [0.75, -1.0, 1.75])
+    np.testing.assert_allclose(ret[:, 0], [1.25, 0.0, 2.0])
+    # a terminal last step: no bootstrap
+    adv, _ = compute_gae(costs, values, starts, last_values=np.array([2.0]), dones=np.array([True]), gamma=0.5, gae_lambda=0.5)
+    assert adv[2, 0] == pytest.approx(0.75)
+
+
+def test_cost_gae_matches_sb3_reward_gae() -> None:
+    rng = np.random.default_rng(0)
+    n_steps, n_envs = 7, 3
+    obs_space = spaces.Box(-1, 1, (2,))
+    act_space = spaces.Box(-1, 1, (1,))
+    sb3 = RolloutBuffer(n_steps, obs_space, act_space, gamma=0.9, gae_lambda=0.8, n_envs=n_envs)
+    rewards, values = rng.normal(size=(n_steps, n_envs)), rng.normal(size=(n_steps, n_envs))
+    starts = rng.random((n_steps, n_envs)) < 0.3
+    for t in range(n_steps):
+        sb3.add(np.zeros((n_envs, 2)), np.zeros((n_envs, 1)), rewards[t], starts[t], th.tensor(values[t]), th.zeros(n_envs))
+    last, dones = rng.normal(size=n_envs), np.array([True, False, False])
+    sb3.compute_returns_and_advantage(th.tensor(last), dones)
+    adv, ret = compute_gae(rewards, values, starts, last, dones, 0.9, 0.8)
+    np.testing.assert_allclose(adv, sb3.advantages, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(ret, sb3.returns, rtol=1e-5, atol=1e-5)
+
+
+def _filled_buffer(masks: np.ndarray) -> CostRolloutBuffer:
+    n_steps, n_envs = masks.shape
+    buf = CostRolloutBuffer(n_steps, spaces.Box(-1, 1, (1,)), spaces.Box(-1, 1, (1,)), gamma=0.9, gae_lambda=1.0, n_envs=n_envs)
+    for t in range(n_steps):
+        obs = np.full((n_envs, 1), t, dtype=np.float32)
+        buf.add(obs, np.zeros((n_envs, 1)), np.ones(n_envs), np.zeros(n_envs), th.zeros(n_envs), th.zeros(n_envs),
+                cost=np.full(n_envs, 1.0), cost_value=th.zeros(n_envs), mask=masks[t])  # fmt: skip
+    buf.compute_returns_and_advantage(th.zeros(n_envs), np.zeros(n_envs, dtype=bool), last_cost_values=th.zeros(n_envs))
+    return buf
+
+
+def test_cost_buffer_stores_cost_gae_and_masks() -> None:
+    masks = np.array([[1, 1], [1, 0], [0, 0], [1, 1]], dtype=np.float32)
+    buf = _filled_buffer(masks)
+    # constant cost 1, zero values, gamma 0.9, lambda 1: discounted cost-to-go
+    np.testing.assert_allclose(buf.cost_returns[:, 0], [1 + 0.9 + 0.81 + 0.729, 1 + 0.9 + 0.81, 1.9, 1.0], rtol=1e-6)
+    assert buf.n_learnable == 5
+    seen = np.concatenate([batch.observations.numpy().ravel() for batch in buf.get(batch_size=2)])
+    assert len(seen) == 5
+    # step 2 is masked in both envs, step 1 in env 1 only
+    assert sorted(seen.tolist()) == [0.0, 0.0, 1.0, 3.0, 3.0]
+    full = next(buf.get(None))
+    assert full.cost_returns.shape == (5,)
+
+
+def test_cost_policy_head_and_save_params() -> None:
+    policy = CostActorCriticPolicy(spaces.Box(-1, 1, (3,)), spaces.Box(-1, 1, (2,)), lambda _: 1e-3, net_arch=[8])
+    assert policy.cost_net_arch == [8]
+    out = policy.predict_cost_values(th.zeros(5, 3))
+    assert out.shape == (5, 1)
+    # the cost head is trained by the optimiser and named "value" (TRPO's natural gradient skips it)
+    head = {id(p) for p in policy.cost_value_net.parameters()}
+    assert head <= {id(p) for group in policy.optimizer.param_groups for p in group["params"]}
+    assert all("value" in name for name, _ in policy.named_parameters() if name.startswith("cost_value_net"))
+    assert policy._get_constructor_parameters()["cost_net_arch"] == [8]
+
+
+def test_episode_cost_tracker() -> None:
+    tracker = EpisodeCostTracker(n_envs=2)
+    tracker.start_rollout()
+    tracker.update(np.array([1.0, 0.0]), np.array([False, False]))
+    assert tracker.estimate() == pytest.approx(0.5)  # no finished episode yet: running mean
+    tracker.update(np.array([1.0, 0.0]), np.array([True, False]))
+    assert tracker.estimate() == pytest.approx(2.0) and tracker.mean_length() == 2.0
+    tracker.start_rollout()  # nothing finished in this rollout: the recent window
+    assert tracker.estimate() == pytest.approx(2.0)
+    tracker.update(np.array([0.0, 0.0]), np.array([False, True]))
+    assert tracker.estimate() == pytest.approx(0.0) and tracker.mean_length() == 3.0
+
+
+@pytest.mark.parametrize("algo", [PDO, CPO, SAILR])
+def test_missing_cost_is_a_clear_error(algo: type) -> None:
+    kwargs = {"shield": None} if algo is SAILR else {}
+    with pytest.warns(UserWarning, match="plain PPO") if algo is SAILR else contextlib.nullcontext():
+        model = algo("MlpPolicy", "Pendulum-v1", n_steps=64, batch_size=32, policy_kwargs=TINY, **kwargs)
+    with pytest.raises(MissingCostError, match=r"info\['cost'\]"):
+        model.learn(64)
+    assert model.num_timesteps == 0  # failed on the very first step
+
+
+def test_wrong_buffer_or_policy_is_a_clear_error() -> None:
+    with pytest.raises(TypeError, match="CostRolloutBuffer"):
+        PDO("MlpPolicy", "SafePointCircle-v0", n_steps=64, batch_size=32, rollout_buffer_class=RolloutBuffer, policy_kwargs=TINY)
+    from stable_baselines3.common.policies import ActorCriticPolicy
+
+    with pytest.raises(TypeError, match="CostActorCriticPolicy"):
+        PDO(ActorCriticPolicy, "SafePointCircle-v0", n_steps=64, batch_size=32, policy_kwargs=TINY)
+
+
+def test_safety_metrics_logged(tmp_path) -> None:
+    from stable_baselines3.common.logger import configure
+
+    model = PDO("MlpPolicy", "SafePointCircle-v0", n_steps=64, batch_size=32, n_epochs=1, policy_kwargs=TINY, seed=1)
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(256)
+    header = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
+    assert {"safety/cumulative_violations", "safety/safety_rate", "safety/ep_cost_estimate"} <= set(header)
+    assert model.safety_metrics.steps == 256
