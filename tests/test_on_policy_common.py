@@ -25,7 +25,9 @@ def test_cost_gae_hand_computed() -> None:
     costs = np.array([[1.0], [0.0], [1.0]])
     values = np.array([[0.5], [1.0], [0.25]])
     starts = np.array([[1.0], [0.0], [1.0]])
-    adv, ret = compute_gae(costs, values, starts, last_values=np.array([2.0]), dones=np.array([False]), gamma=0.5, gae_lambda=0.5)
+    adv, ret = compute_gae(
+        costs, values, starts, last_values=np.array([2.0]), dones=np.array([False]), gamma=0.5, gae_lambda=0.5
+    )
     # step 2: δ = 1 + 0.5·2 - 0.25 = 1.75, A = 1.75
     # step 1: next step starts an episode → δ = 0 - 1 = -1, A = -1
     # step 0: δ = 1 + 0.5·1 - 0.5 = 1, A = 1 + 0.25·(-1) = 0.75
@@ -55,7 +57,9 @@ def test_cost_gae_matches_sb3_reward_gae() -> None:
 
 def _filled_buffer(masks: np.ndarray) -> CostRolloutBuffer:
     n_steps, n_envs = masks.shape
-    buf = CostRolloutBuffer(n_steps, spaces.Box(-1, 1, (1,)), spaces.Box(-1, 1, (1,)), gamma=0.9, gae_lambda=1.0, n_envs=n_envs)
+    buf = CostRolloutBuffer(
+        n_steps, spaces.Box(-1, 1, (1,)), spaces.Box(-1, 1, (1,)), gamma=0.9, gae_lambda=1.0, n_envs=n_envs
+    )
     for t in range(n_steps):
         obs = np.full((n_envs, 1), t, dtype=np.float32)
         buf.add(obs, np.zeros((n_envs, 1)), np.ones(n_envs), np.zeros(n_envs), th.zeros(n_envs), th.zeros(n_envs),
@@ -115,7 +119,14 @@ def test_missing_cost_is_a_clear_error(algo: type) -> None:
 
 def test_wrong_buffer_or_policy_is_a_clear_error() -> None:
     with pytest.raises(TypeError, match="CostRolloutBuffer"):
-        PDO("MlpPolicy", "SafePointCircle-v0", n_steps=64, batch_size=32, rollout_buffer_class=RolloutBuffer, policy_kwargs=TINY)
+        PDO(
+            "MlpPolicy",
+            "SafePointCircle-v0",
+            n_steps=64,
+            batch_size=32,
+            rollout_buffer_class=RolloutBuffer,
+            policy_kwargs=TINY,
+        )
     from stable_baselines3.common.policies import ActorCriticPolicy
 
     with pytest.raises(TypeError, match="CostActorCriticPolicy"):
