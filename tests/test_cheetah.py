@@ -149,3 +149,15 @@ def test_picklable_and_registered(env: SafeHalfCheetahHeightEnv, states: dict[st
     assert isinstance(default_shielding_rule("SafeHalfCheetahHeight-v0"), HalfCheetahHeightShieldingRule)
     default = env.default_shielding_rule()
     assert (default.eta, default.gamma, default.alpha, default.horizon, default.n_particles) == (0.2, 0.99, 0.05, 15, 64)
+
+
+def test_shared_solve_variant(states: dict[str, np.ndarray]) -> None:
+    """``replan=False``: one MPC solve at ``s`` serves ``ζ``, ``Q̄(s, a)`` and ``Q̄(s, ζ(s))``."""
+    obs = np.stack([states["slumped"], states["standing"]])
+    rule = HalfCheetahHeightShieldingRule(seed=2, n_threads=0, replan=False)
+    decision = rule.shield(obs, np.stack([-np.ones(6), HOLD]))
+    assert decision.intervened.tolist() == [True, False]
+    backup = rule.backup_action(obs)  # the second draw of the noise (one solve per draw) ...
+    twin = HalfCheetahHeightShieldingRule(seed=2, n_threads=0, replan=False)
+    twin.backup_action(obs)
+    np.testing.assert_array_equal(twin.advantage(obs, backup), 0.0)  # ... solved again from the same draw: Ā = 0

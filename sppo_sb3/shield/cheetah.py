@@ -20,7 +20,7 @@ from mujoco import rollout as mj_rollout
 
 from sppo_sb3.common.costs import shaped_cost
 from sppo_sb3.envs.half_cheetah_height import HEIGHT_BODY, half_cheetah_xml_path, height_distance_to_unsafe, height_is_unsafe
-from sppo_sb3.shield.base import ShieldingRule
+from sppo_sb3.shield.base import ShieldDecision, ShieldingRule, in_shielding_set
 
 FRAME_SKIP = 5
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
@@ -91,22 +91,30 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
     absorbing: at the first step ``t`` whose height leaves ``[0.4, 1.0]`` the rest of the sum is replaced by
     ``γ^(t+1) / (1 - γ)`` (``ĉ = 1`` forever), as in the Point rule.
 
-    Backup ``ζ(s)``: one MPPI iteration from ``s`` over ``H`` env steps, nominal plan 0 (no warm start: the rule is
-    stateless, as SAILR's solves), ``N`` particles ``clip(σ·ε, -1, 1)`` (particle 0 is the nominal plan), each
-    scored by ``J``; weights ``softmax(-J / λ)``; the plan is the weighted mean of the particles (inside the bounds);
-    ``ζ(s)`` is its first action.
+    The MPC from a state ``s`` (optionally after a fixed first action): one MPPI iteration over the ``H`` env steps,
+    nominal plan 0 (no warm start: the rule is stateless, as SAILR's solves), ``N`` particles ``clip(σ·ε, -1, 1)``
+    (particle 0 is the nominal plan), each scored by ``J``; weights ``softmax(-J / λ)``; the MPPI plan is the weighted
+    mean of the particles (inside the bounds). Of the MPPI plan and the best particle, the MPC returns the one with the
+    lower ``J`` (both are rolled): the mean of a few good particles can be worse than each of them.
 
-    ``Q̄(s, a)`` (the paper's ``Q̄ = E[Σ_(t=0)^(H_m) γ^t ĉ | â_(1:H) = MPC(ŝ_1)]``): take ``a``, re-solve the MPPI from
-    ``ŝ_1`` for the remaining ``H - 1`` steps (its particles are rolled from ``s`` with ``a`` as their first action,
-    so each is scored by ``J`` over the same ``H`` steps), then roll ``[a, plan]`` from ``s`` and return its ``J``.
+    Backup ``ζ(s)``: the first action of the MPC plan from ``s``.
+
+    ``Q̄(s, a)`` with ``replan=True`` (default; the paper's ``Q̄ = E[Σ_(t=0)^(H_m) γ^t ĉ | â_(1:H) = MPC(ŝ_1)]``, as
+    SAILR computes it): take ``a``, re-solve the MPC from ``ŝ_1`` for the remaining ``H - 1`` steps (its particles
+    are rolled from ``s`` with ``a`` as their first action, so each is scored by ``J`` over the same ``H`` steps),
+    and return ``J`` of ``[a, plan]``. Per shield call on ``B`` states: ``B·N`` particle rollouts for ``ζ``,
+    ``2B·N`` for the ``Q̄(s, a)`` and ``Q̄(s, ζ(s))`` solves (one batch, :meth:`ShieldingRule.advantage`), and ``6B``
+    candidate rollouts, each of ``5H + 1`` physics steps, in four :mod:`mujoco.rollout` calls.
+
+    ``Q̄(s, a)`` with ``replan=False`` (3× cheaper, more conservative): ``J`` of ``a`` followed by the tail
+    ``plan[1:]`` of the MPC plan solved at ``s`` itself; ``Q̄(s, ζ(s))`` is then the plan's own ``J``, and one
+    solve serves ``ζ``, ``Q̄(s, a)`` and ``Q̄(s, ζ(s))`` (:meth:`advantage` and :meth:`shield` are overridden to
+    share it): ``B·N + 4B`` rollouts per shield call. The tail is not adapted to ``a``, so ``Q̄(s, a)`` is larger
+    than with re-planning and the rule intervenes more.
 
     All states of a call share the same noise ``ε`` (common random numbers): ``Q̄(s, a)`` is a deterministic function
-    of ``(s, a)`` within a call, so the batched ``Ā(s, ζ(s)) = Q̄(s, ζ(s)) - Q̄(s, ζ(s))`` of
-    :meth:`ShieldingRule.advantage` is exactly 0 (Proposition 1). The noise comes from a generator seeded by
-    ``seed``: two rules with the same seed give the same answers to the same calls.
-
-    Per shield call on ``B`` states: ``B·N`` rollouts for ``ζ``, ``2B·N`` for the two ``Q̄`` solves and ``2B`` plan
-    rollouts, each of ``5H + 1`` physics steps, in three :mod:`mujoco.rollout` calls.
+    of ``(s, a)`` within a call, so ``Ā(s, ζ(s)) = 0`` exactly (Proposition 1). The noise comes from a generator
+    seeded by ``seed``: two rules with the same seed give the same answers to the same calls, whatever the threads.
 
     :param horizon: ``H_m``, the MPC and ``Q̄`` horizon in env steps.
     :param n_particles: MPPI particles per solve (SAILR: 64).
@@ -117,6 +125,7 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
     :param eta: advantage threshold (paper: 0.2).
     :param penalty: absorbing reward ``R̃``.
     :param seed: seed of the particle noise.
+    :param replan: re-solve the MPC after ``a`` for ``Q̄(s, a)`` (paper, SAILR), or reuse the plan solved at ``s``.
     :param n_threads: threads of the rollout pool; ``None``: one per available core; 0: the calling thread.
     :param xml_path: the MJCF model (must be the env's); gymnasium's ``half_cheetah.xml`` by default.
     """
@@ -132,6 +141,7 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
         eta: float = 0.2,
         penalty: float = -1.0,
         seed: int | None = 0,
+        replan: bool = True,
         n_threads: int | None = None,
         xml_path: str | None = None,
     ) -> None:
@@ -145,6 +155,7 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
         self.alpha = alpha
         self.gamma = gamma
         self.seed = seed
+        self.replan = replan
         self.n_threads = len(os.sched_getaffinity(0)) if n_threads is None else n_threads
         self.xml_path = xml_path
         self.rng = np.random.default_rng(seed)
@@ -268,7 +279,41 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
         return np.clip(plan[:, 0], self.action_low, self.action_high)
 
     def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """``Q̄(s, a)``: ``J`` of "take ``a``, then the MPC plan re-solved from ``ŝ_1``", batched over ``obs``."""
+        """``Q̄(s, a)``: ``J`` of "take ``a``, then the MPC plan" (re-solved from ``ŝ_1``, or solved at ``s``)."""
+        states, actions = self._inputs(obs, actions)
+        if self.replan:
+            return self.solve(states, first_action=actions)[1]
+        return self._shared(states, actions)[1]
+
+    def advantage(self, obs: np.ndarray, actions: np.ndarray, backup: np.ndarray | None = None) -> np.ndarray:
+        """``Ā(s, a) = Q̄(s, a) - Q̄(s, ζ(s))``; with ``replan=False`` from one shared solve (``backup`` is recomputed)."""
+        if self.replan:
+            return super().advantage(obs, actions, backup)
+        _, q, v = self._shared(*self._inputs(obs, actions))
+        return q - v
+
+    def shield(self, obs: np.ndarray, actions: np.ndarray) -> ShieldDecision:
+        """Eq. 12; with ``replan=False``, ``ζ(s)``, ``Q̄(s, a)`` and ``Q̄(s, ζ(s))`` come from one MPC solve."""
+        if self.replan:
+            return super().shield(obs, actions)
+        states, clipped = self._inputs(obs, actions)
+        backup, q, v = self._shared(states, clipped)
+        intervened = in_shielding_set(q - v, self.eta)
+        safe = np.where(intervened[:, None], backup, np.asarray(actions, dtype=np.float64).reshape(clipped.shape))
+        return ShieldDecision(actions=safe, intervened=intervened, advantage=q - v)
+
+    def _inputs(self, obs: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Physics states rebuilt from ``obs`` and the actions clipped to the control range."""
         states = states_from_obs(self.model, obs)
-        actions = np.clip(np.asarray(actions, dtype=np.float64).reshape(len(states), -1), self.action_low, self.action_high)
-        return self.solve(states, first_action=actions)[1]
+        actions = np.asarray(actions, dtype=np.float64).reshape(len(states), -1)
+        return states, np.clip(actions, self.action_low, self.action_high)
+
+    def _shared(self, states: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``replan=False``: ``(ζ(s), Q̄(s, a), Q̄(s, ζ(s)))`` from the MPC plan solved at ``s``."""
+        plan, value = self.solve(states)
+        tails = np.concatenate([actions[:, None], plan[:, 1:]], axis=1)
+        return (
+            np.clip(plan[:, 0], self.action_low, self.action_high),
+            self.discounted_cost(self.rollout_heights(states, tails)),
+            value,
+        )
