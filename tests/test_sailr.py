@@ -1,0 +1,168 @@
+"""SAILR: the shield decides every executed action; the absorbing MDP's learning data; save/load; n_envs."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+import sppo_sb3  # noqa: F401  (registers the tasks)
+from sppo_sb3.sailr import SAILR
+from sppo_sb3.shield import PointCircleShieldingRule, ShieldWrapper
+
+TINY = dict(net_arch=[16])
+FAST = dict(n_steps=64, batch_size=32, n_epochs=2, policy_kwargs=TINY)
+
+
+class RecordExecuted(gym.Wrapper):
+    """Below the shield: records the observation and the action the env actually received."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.log: list[tuple[np.ndarray, np.ndarray]] = []
+        self._obs: np.ndarray | None = None
+
+    def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict]:
+        obs, info = self.env.reset(**kwargs)
+        self._obs = obs
+        return obs, info
+
+    def step(self, action: np.ndarray) -> tuple[Any, ...]:
+        self.log.append((np.array(self._obs, dtype=np.float64), np.array(action, dtype=np.float64)))
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self._obs = obs
+        return obs, reward, terminated, truncated, info
+
+
+class GrabRollout(BaseCallback):
+    """Keeps the infos of every step and the rollout buffer's learning data (before it is flattened)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.infos: list[list[dict]] = []
+        self.dones: list[np.ndarray] = []
+        self.rollouts: list[dict[str, np.ndarray]] = []
+
+    def _on_step(self) -> bool:
+        self.infos.append(self.locals["infos"])
+        self.dones.append(self.locals["dones"].copy())
+        return True
+
+    def _on_rollout_end(self) -> None:
+        buf = self.model.rollout_buffer
+        self.rollouts.append(
+            {k: getattr(buf, k).copy() for k in ("rewards", "masks", "episode_starts", "advantages", "values")}
+        )
+
+
+def test_no_intervened_action_is_ever_executed() -> None:
+    recorder = RecordExecuted(gym.make("SafePointCircle-v0"))
+    model = SAILR("MlpPolicy", recorder, seed=0, **FAST)
+    grab = GrabRollout()
+    model.learn(512, callback=grab)
+    rule = PointCircleShieldingRule()
+    obs = np.stack([o for o, _ in recorder.log])
+    executed = np.stack([a for _, a in recorder.log])
+    intervened = np.array([info[0]["shield_intervened"] for info in grab.infos])
+    assert intervened.any(), "the test needs interventions to be meaningful"
+    # every executed action is outside the shielding set I (Proposition 1 for the backup actions)
+    assert not rule.shield(obs, executed).intervened.any()
+    # where the shield intervened, the env received the backup action, not the proposal
+    np.testing.assert_allclose(executed[intervened], rule.backup_action(obs[intervened]), atol=1e-6)
+    proposals = np.stack([info[0]["proposed_action"] for info in grab.infos])
+    np.testing.assert_allclose(executed[~intervened], proposals[~intervened], atol=1e-6)
+    assert model.safety_metrics.violations == 0
+    assert model.safety_metrics.interventions == intervened.sum()
+
+
+def test_absorbing_transition_and_post_intervention_mask() -> None:
+    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=1, n_steps=256, batch_size=64, n_epochs=1, policy_kwargs=TINY)
+    grab = GrabRollout()
+    model.learn(1024, callback=grab)
+    penalty = model.shield_rule.penalty
+    assert penalty == -1.0
+    intervened = np.array([info[0]["shield_intervened"] for info in grab.infos])
+    dones = np.concatenate(grab.dones)
+    rewards = np.concatenate([r["rewards"][:, 0] for r in grab.rollouts])
+    masks = np.concatenate([r["masks"][:, 0] for r in grab.rollouts])
+    starts = np.concatenate([r["episode_starts"][:, 0] for r in grab.rollouts])
+    advantages = np.concatenate([r["advantages"][:, 0] for r in grab.rollouts])
+    values = np.concatenate([r["values"][:, 0] for r in grab.rollouts])
+    # expected learning data, step by step: first intervention → absorbing, then masked until the episode ends
+    post, first_seen = False, 0
+    for t in range(len(intervened)):
+        assert masks[t] == (0.0 if post else 1.0), t
+        if not post and intervened[t]:
+            first_seen += 1
+            assert rewards[t] == penalty
+            # absorbing: A_t = R̃ - V(s_t), no bootstrap from the next state (also at the end of a rollout)
+            assert advantages[t] == pytest.approx(penalty - values[t], abs=1e-5)
+            if t + 1 < len(starts) and (t + 1) % 256:
+                assert starts[t + 1] == 1.0  # terminal for learning: GAE does not bootstrap through it
+            post = not dones[t]
+        elif dones[t]:
+            post = False
+    assert first_seen > 0 and (masks == 0).any()
+
+
+def test_sailr_train_skips_fully_masked_rollout() -> None:
+    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=0, **FAST)
+    model.learn(64)
+    model.rollout_buffer.masks[:] = 0.0  # a rollout made only of post-intervention steps
+    model.rollout_buffer.generator_ready = False
+    before = [p.detach().clone() for p in model.policy.parameters()]
+    model.train()
+    assert all((a == b).all() for a, b in zip(before, model.policy.parameters()))
+
+
+def test_sailr_smoke_save_load_predict(tmp_path) -> None:
+    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=0, tensorboard_log=str(tmp_path / "tb"), **FAST)
+    model.learn(256, progress_bar=True)
+    assert model.safety_metrics.steps == 256
+    model.save(tmp_path / "sailr")
+    loaded = SAILR.load(tmp_path / "sailr", env=make_vec_env("SafePointCircle-v0", n_envs=1))
+    assert isinstance(loaded.shield_rule, PointCircleShieldingRule)
+    assert all(loaded.get_env().env_is_wrapped(ShieldWrapper))  # the loaded model shields its new env too
+    obs = np.random.default_rng(0).uniform(-2, 2, size=(16, 4)).astype(np.float32)
+    np.testing.assert_allclose(model.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
+    np.testing.assert_equal(loaded.safety_metrics.summary(), model.safety_metrics.summary())  # NaN-aware
+    loaded.learn(64, reset_num_timesteps=False)
+    assert loaded.safety_metrics.steps == 320
+
+
+def test_sailr_n_envs_and_user_rule() -> None:
+    env = make_vec_env("SafePointCircle-v0", n_envs=2, seed=0)
+    rule = PointCircleShieldingRule(penalty=-2.0)
+    model = SAILR("MlpPolicy", env, shield=rule, seed=0, **FAST)
+    assert model.shield_rule is rule and model.absorbing_penalty == -2.0
+    assert all(env.env_is_wrapped(ShieldWrapper))
+    model.learn(256)
+    assert model.safety_metrics.steps == 256 and model.safety_metrics.violations == 0
+    rewards, masks = model.rollout_buffer.rewards, model.rollout_buffer.masks
+    assert rewards.shape == (64, 2) and set(np.unique(masks.ravel())) <= {0.0, 1.0}
+
+
+def test_sailr_shield_errors() -> None:
+    with pytest.raises(ValueError, match="No shielding rule is registered"):
+        SAILR("MlpPolicy", "Pendulum-v1", **FAST)
+    with pytest.raises(ValueError, match="penalty"):
+        SAILR("MlpPolicy", "SafePointCircle-v0", penalty=1.0, **FAST)
+    env = make_vec_env("SafePointCircle-v0", n_envs=1, vec_env_cls=SubprocVecEnv, vec_env_kwargs=dict(start_method="fork"))
+    try:
+        with pytest.raises(TypeError, match="wrapper_class"):
+            SAILR("MlpPolicy", env, **FAST)
+    finally:
+        env.close()
+
+
+def test_sailr_accepts_prewrapped_envs() -> None:
+    rule = PointCircleShieldingRule()
+    env = DummyVecEnv([lambda: ShieldWrapper(gym.make("SafePointCircle-v0"), rule)])
+    model = SAILR("MlpPolicy", env, shield=None, **FAST)
+    assert model.shield_rule is rule
+    model.learn(64)
