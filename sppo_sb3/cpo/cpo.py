@@ -1,0 +1,365 @@
+"""CPO: Constrained Policy Optimization (Achiam, Held, Tamar & Abbeel, ICML 2017).
+
+Each update solves the trust-region problem of Achiam et al.'s eq. 10 around the current parameters ``θ_k``
+(``x = θ - θ_k``)::
+
+    max_x  gᵀx    s.t.   c + bᵀx <= 0,   ½ xᵀHx <= δ
+
+with ``g`` the gradient of the reward surrogate, ``b`` the gradient of the cost surrogate, ``H`` the Fisher matrix
+(the KL's Hessian) and ``c = J_C(π_k) - d`` the constraint value. Its dual (Achiam's Appendix 10.2) is solved in
+closed form by :func:`cpo_dual_solution`; the step is then checked by a backtracking line search on the true
+KL, surrogate improvement and surrogate cost. When no point of the trust region satisfies the linearised constraint,
+the update is the recovery step that decreases the cost the most: ``x = -sqrt(2δ / s)·H⁻¹b``.
+
+The conjugate-gradient solver, the Fisher-vector product and the actor/KL gradients are sb3-contrib TRPO's.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+from functools import partial
+from typing import Any, ClassVar, TypeVar
+
+import torch as th
+from gymnasium import spaces
+from sb3_contrib import TRPO
+from sb3_contrib.common.utils import conjugate_gradient_solver, flat_grad
+from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.distributions import kl_divergence
+from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.utils import explained_variance
+
+from sppo_sb3.common.on_policy import CostActorCriticPolicy, CostRolloutBuffer, SafeOnPolicyMixin
+from sppo_sb3.cpo.policies import MlpPolicy
+
+SelfCPO = TypeVar("SelfCPO", bound="CPO")
+
+#: integer codes of :attr:`CPOSolution.case`, for the ``train/cpo_case`` log
+CPO_CASES = {"infeasible": 0, "constrained": 1, "unconstrained": 2}
+
+
+@dataclass(frozen=True)
+class CPOSolution:
+    """Solution of the CPO step problem, as the step ``x* = coef_g·H⁻¹g + coef_b·H⁻¹b``.
+
+    :param case: ``"unconstrained"``: the linearised constraint does not cut the trust region, TRPO's step;
+        ``"constrained"``: the dual solution ``x* = (H⁻¹g - ν*·H⁻¹b) / λ*`` (``ν*`` may still be 0);
+        ``"infeasible"``: no point of the trust region satisfies the constraint, recovery step ``-sqrt(2δ/s)·H⁻¹b``
+        (zero when ``b = 0``: nothing decreases the cost to first order).
+    :param lam: the dual variable ``λ*`` of the trust region (``nan`` in the infeasible case).
+    :param nu: the dual variable ``ν*`` of the cost constraint (``nan`` in the infeasible case).
+    :param coef_g: coefficient of ``H⁻¹g`` in the step.
+    :param coef_b: coefficient of ``H⁻¹b`` in the step.
+    """
+
+    case: str
+    lam: float
+    nu: float
+    coef_g: float
+    coef_b: float
+
+
+def cpo_dual_solution(q: float, r: float, s: float, c: float, delta: float, eps: float = 1e-8) -> CPOSolution:
+    """Closed-form solution of CPO's step problem through its dual (Achiam et al. 2017, eq. 10 and Appendix 10.2).
+
+    Problem: ``max_x gᵀx  s.t.  c + bᵀx <= 0,  ½ xᵀHx <= δ``, with ``q = gᵀH⁻¹g``, ``r = gᵀH⁻¹b``, ``s = bᵀH⁻¹b``.
+    The dual function (minimised over ``λ >= 0, ν >= 0``; Achiam's dual is its negative) is
+    ``D(λ, ν) = (q - 2νr + ν²s) / (2λ) - νc + λδ`` and the primal solution is ``x* = (H⁻¹g - ν*·H⁻¹b) / λ*``.
+    For fixed ``λ`` the best ``ν`` is ``ν(λ) = max(0, (λc + r) / s)``, which splits ``λ >= 0`` in two:
+
+    - ``Λ_a = {λc + r > 0}`` (``ν > 0``): ``D_a(λ) = A / (2λ) + λB/2 - rc/s``, ``A = q - r²/s``, ``B = 2δ - c²/s``,
+      minimised at ``λ = sqrt(A / B)``;
+    - ``Λ_b = {λc + r <= 0}`` (``ν = 0``): ``D_b(λ) = q / (2λ) + λδ``, minimised at ``λ = sqrt(q / (2δ))``.
+
+    Each unconstrained minimiser is projected onto its interval and the better of the two is ``λ*``. Before that,
+    the two degenerate cases of Achiam's Section 6.2: if ``c > 0`` and ``B < 0`` the trust region holds no
+    feasible point (``c - sqrt(2δs) > 0``): recovery step ``x* = -sqrt(2δ/s)·H⁻¹b``; if ``c < 0`` and ``B < 0`` the
+    constraint cannot bind inside the trust region: TRPO's step ``x* = sqrt(2δ/q)·H⁻¹g``.
+
+    :param q: ``gᵀH⁻¹g >= 0``.
+    :param r: ``gᵀH⁻¹b``.
+    :param s: ``bᵀH⁻¹b >= 0``.
+    :param c: constraint value ``J_C(π_k) - d`` (in the units of the cost surrogate).
+    :param delta: trust-region size ``δ > 0`` (the KL bound; the trust region is ``½ xᵀHx <= δ``).
+    :param eps: threshold below which ``q``, ``s``, ``λ`` count as 0.
+    :return: the dual variables and the step's coefficients.
+    """
+    q, r, s, c, delta = float(q), float(r), float(s), float(c), float(delta)
+    if delta <= 0:
+        raise ValueError(f"The trust-region size delta must be > 0, got {delta}.")
+    q, s = max(q, 0.0), max(s, 0.0)
+
+    def trpo_step() -> CPOSolution:
+        if q <= eps:
+            return CPOSolution("unconstrained", float("inf"), 0.0, 0.0, 0.0)
+        lam = math.sqrt(q / (2.0 * delta))
+        return CPOSolution("unconstrained", lam, 0.0, 1.0 / lam, 0.0)
+
+    if s <= eps:  # no first-order cost information: the linearised constraint is just c <= 0
+        return trpo_step() if c <= 0 else CPOSolution("infeasible", float("nan"), float("nan"), 0.0, 0.0)
+    big_b = 2.0 * delta - c * c / s
+    if c > 0 and big_b < 0:
+        return CPOSolution("infeasible", float("nan"), float("nan"), 0.0, -math.sqrt(2.0 * delta / s))
+    if c < 0 and big_b < 0:
+        return trpo_step()
+
+    big_a = max(q - r * r / s, 0.0)
+    if big_a <= 1e-10 * q:
+        # g ∥ b in the H-metric (A = 0): the optimum lies on the line H⁻¹b; solved directly, since the general
+        # formula would divide by λ* = sqrt(A/B) = 0 and cancel two huge terms
+        if r > 0 and -c / s < math.sqrt(2.0 * delta / s):  # the constraint, not the trust region, stops the step
+            return CPOSolution("constrained", 0.0, r / s, 0.0, -c / s)
+        return trpo_step()
+    # intervals Λ_a = {λ >= 0: λc + r > 0} and Λ_b = {λ >= 0: λc + r <= 0}, as (low, high) or None when empty
+    inf = float("inf")
+    if c > 0:
+        split = -r / c
+        lam_a_set: tuple[float, float] | None = (max(0.0, split), inf)
+        lam_b_set = (0.0, split) if split >= 0 else None
+    elif c < 0:
+        split = -r / c
+        lam_a_set = (0.0, split) if split > 0 else None
+        lam_b_set = (max(0.0, split), inf)
+    else:
+        lam_a_set, lam_b_set = ((0.0, inf), None) if r > 0 else (None, (0.0, inf))
+
+    def dual_a(lam: float) -> float:
+        return big_a / (2.0 * lam) + lam * big_b / 2.0 - r * c / s
+
+    def dual_b(lam: float) -> float:
+        return q / (2.0 * lam) + lam * delta
+
+    candidates: list[tuple[float, float]] = []  # (dual value, λ)
+    if lam_a_set is not None:
+        lam_a = math.sqrt(big_a / big_b) if big_b > eps else inf
+        lam_a = min(max(lam_a, lam_a_set[0], eps), lam_a_set[1])
+        candidates.append((dual_a(lam_a), lam_a))
+    if lam_b_set is not None:
+        lam_b = min(max(math.sqrt(q / (2.0 * delta)), lam_b_set[0], eps), lam_b_set[1])
+        candidates.append((dual_b(lam_b), lam_b))
+    _, lam = min(candidates)
+    if not math.isfinite(lam):  # B = 0 and Λ_a unbounded: the trust region touches the constraint at one point
+        return CPOSolution("constrained", inf, inf, 0.0, -c / s)
+    nu = max(0.0, (lam * c + r) / s)
+    return CPOSolution("constrained", lam, nu, 1.0 / lam, -nu / lam)
+
+
+class CPO(SafeOnPolicyMixin, TRPO):
+    """Constrained Policy Optimization: TRPO's natural-gradient step with a linearised cost constraint.
+
+    Each rollout: the measured mean episode cost ``J_C`` gives the constraint value ``c = (J_C - d) / T̄`` (``T̄``:
+    mean episode length, which puts ``c`` in the per-step units of the cost surrogate ``E[ratio·A_C]``); ``g`` and
+    ``b`` are the gradients of the reward and cost surrogates; ``H⁻¹g`` and ``H⁻¹b`` come from TRPO's conjugate
+    gradient; :func:`cpo_dual_solution` gives the step; a backtracking line search accepts it when the KL is within
+    ``target_kl``, the surrogate cost change is at most ``max(0, -c)`` and (unless recovering) the reward surrogate
+    improves. Then ``V`` and ``V_C`` are regressed on their TD(λ) returns. Every other argument is sb3-contrib
+    ``TRPO``'s.
+
+    :param policy: the policy model ("MlpPolicy": :class:`~sppo_sb3.common.on_policy.CostActorCriticPolicy`).
+    :param env: the environment (must report ``info["cost"]``), or its registered id.
+    :param learning_rate: learning rate of the two critics.
+    :param n_steps: steps per env per rollout.
+    :param batch_size: minibatch size of the critics' regression.
+    :param gamma: discount of the reward and of the cost.
+    :param cg_max_steps: conjugate-gradient iterations (for ``H⁻¹g`` and for ``H⁻¹b``).
+    :param cg_damping: damping added to the Fisher-vector product.
+    :param line_search_shrinking_factor: step shrinking factor of the line search.
+    :param line_search_max_iter: line search iterations.
+    :param n_critic_updates: passes of the critics' regression per rollout.
+    :param gae_lambda: GAE ``λ`` of the reward and of the cost.
+    :param use_sde: generalised state-dependent exploration.
+    :param sde_sample_freq: gSDE noise resampling period.
+    :param rollout_buffer_class: ``None`` or a subclass of :class:`~sppo_sb3.common.on_policy.CostRolloutBuffer`.
+    :param rollout_buffer_kwargs: kwargs of the rollout buffer.
+    :param normalize_advantage: normalise the reward advantage (the cost advantage is only centred, its scale
+        must match ``c``).
+    :param target_kl: trust-region size ``δ`` (``½ xᵀHx <= δ``, KL checked by the line search).
+    :param sub_sampling_factor: use every k-th sample for the policy step.
+    :param cost_limit: the limit ``d`` on the mean episode cost ``J_C`` (on tasks that terminate on a violation, the
+        fraction of episodes allowed to end in one).
+    :param stats_window_size: episodes averaged in the rollout logs.
+    :param tensorboard_log: TensorBoard log folder (``None``: none).
+    :param policy_kwargs: policy kwargs (e.g. ``net_arch``, ``cost_net_arch``).
+    :param verbose: 0 none, 1 info, 2 debug.
+    :param seed: random seed.
+    :param device: torch device.
+    :param _init_setup_model: build the networks now.
+    """
+
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": MlpPolicy}
+    policy: CostActorCriticPolicy
+    rollout_buffer: CostRolloutBuffer
+
+    def __init__(
+        self,
+        policy: str | type[CostActorCriticPolicy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = 1e-3,
+        n_steps: int = 2048,
+        batch_size: int = 128,
+        gamma: float = 0.99,
+        cg_max_steps: int = 15,
+        cg_damping: float = 0.1,
+        line_search_shrinking_factor: float = 0.8,
+        line_search_max_iter: int = 10,
+        n_critic_updates: int = 10,
+        gae_lambda: float = 0.95,
+        use_sde: bool = False,
+        sde_sample_freq: int = -1,
+        rollout_buffer_class: type[RolloutBuffer] | None = None,
+        rollout_buffer_kwargs: dict[str, Any] | None = None,
+        normalize_advantage: bool = True,
+        target_kl: float = 0.01,
+        sub_sampling_factor: int = 1,
+        cost_limit: float = 0.05,
+        stats_window_size: int = 100,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
+        verbose: int = 0,
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        _init_setup_model: bool = True,
+    ) -> None:
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            n_steps=n_steps,
+            batch_size=batch_size,
+            gamma=gamma,
+            cg_max_steps=cg_max_steps,
+            cg_damping=cg_damping,
+            line_search_shrinking_factor=line_search_shrinking_factor,
+            line_search_max_iter=line_search_max_iter,
+            n_critic_updates=n_critic_updates,
+            gae_lambda=gae_lambda,
+            use_sde=use_sde,
+            sde_sample_freq=sde_sample_freq,
+            rollout_buffer_class=rollout_buffer_class,
+            rollout_buffer_kwargs=rollout_buffer_kwargs,
+            normalize_advantage=normalize_advantage,
+            target_kl=target_kl,
+            sub_sampling_factor=sub_sampling_factor,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=False,
+        )
+        self.cost_limit = cost_limit
+        self.last_solution: CPOSolution | None = None
+        self._init_safety()
+        if _init_setup_model:
+            self._setup_model()
+
+    def constraint_value(self) -> float:
+        """``c = (J_C - d) / T̄``: the measured constraint value, in the per-step units of the cost surrogate."""
+        return (self.cost_tracker.estimate() - self.cost_limit) / self.cost_tracker.mean_length()
+
+    def _apply_step(self, params: list[th.nn.Parameter], originals: list[th.Tensor], step: th.Tensor) -> None:
+        start = 0
+        for param, original in zip(params, originals, strict=True):
+            n = param.numel()
+            param.data = original + step[start : start + n].view(param.shape)
+            start += n
+
+    def train(self) -> None:
+        """One CPO policy step (dual solution + line search), then the reward and cost critics' regression."""
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        c = self.constraint_value()
+
+        data = next(self.rollout_buffer.get(batch_size=None))
+        sl = slice(None, None, self.sub_sampling_factor)
+        obs, old_log_prob = data.observations[sl], data.old_log_prob[sl]
+        actions = data.actions[sl]
+        if isinstance(self.action_space, spaces.Discrete):
+            actions = actions.long().flatten()
+        advantages, cost_advantages = data.advantages[sl], data.cost_advantages[sl]
+        if self.normalize_advantage and len(advantages) > 1:
+            advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+        cost_advantages = cost_advantages - cost_advantages.mean()
+
+        with th.no_grad():
+            old_distribution = copy.copy(self.policy.get_distribution(obs))
+        distribution = self.policy.get_distribution(obs)
+        ratio = th.exp(distribution.log_prob(actions) - old_log_prob)
+        reward_surrogate = (advantages * ratio).mean()
+        cost_surrogate = (cost_advantages * ratio).mean()
+        kl_div = kl_divergence(distribution, old_distribution).mean()
+
+        self.policy.optimizer.zero_grad()
+        actor_params, g, grad_kl, _ = self._compute_actor_grad(kl_div, reward_surrogate)
+        b = flat_grad(cost_surrogate, actor_params, retain_graph=True)
+        fisher_product = partial(self.hessian_vector_product, actor_params, grad_kl)
+        h_inv_g = conjugate_gradient_solver(fisher_product, g, max_iter=self.cg_max_steps)
+        h_inv_b = conjugate_gradient_solver(fisher_product, b, max_iter=self.cg_max_steps)
+        q, r, s = float(g @ h_inv_g), float(g @ h_inv_b), float(b @ h_inv_b)
+        solution = cpo_dual_solution(q, r, s, c, self.target_kl)
+        step = (solution.coef_g * h_inv_g + solution.coef_b * h_inv_b).detach()
+
+        originals = [param.detach().clone() for param in actor_params]
+        success, kl_value, coef = False, 0.0, 1.0
+        with th.no_grad():
+            for _ in range(self.line_search_max_iter):
+                self._apply_step(actor_params, originals, coef * step)
+                distribution = self.policy.get_distribution(obs)
+                ratio = th.exp(distribution.log_prob(actions) - old_log_prob)
+                new_reward_surrogate = (advantages * ratio).mean()
+                new_cost_surrogate = (cost_advantages * ratio).mean()
+                kl_value = kl_divergence(distribution, old_distribution).mean().item()
+                kl_ok = kl_value <= self.target_kl
+                cost_ok = (new_cost_surrogate - cost_surrogate).item() <= max(0.0, -c)
+                reward_ok = solution.case == "infeasible" or new_reward_surrogate.item() >= reward_surrogate.item()
+                if kl_ok and cost_ok and reward_ok and step.abs().sum() > 0:
+                    success = True
+                    break
+                coef *= self.line_search_shrinking_factor
+            if not success:
+                self._apply_step(actor_params, originals, th.zeros_like(step))
+                kl_value = 0.0
+
+        critic_logs = self._fit_critics(self.n_critic_updates, self.batch_size, reward_critic=True, frozen=actor_params)
+        self._n_updates += 1
+        buf = self.rollout_buffer
+        self.logger.record("train/cpo_case", CPO_CASES[solution.case])
+        self.logger.record("train/constraint_value", c)
+        self.logger.record("train/ep_cost_estimate", self.cost_tracker.estimate())
+        if math.isfinite(solution.nu):
+            self.logger.record("train/lagrange_nu", solution.nu)
+        self.logger.record("train/is_line_search_success", float(success))
+        self.logger.record("train/kl_divergence_loss", kl_value)
+        self.logger.record("train/policy_objective", reward_surrogate.item())
+        self.logger.record("train/explained_variance", explained_variance(buf.values.flatten(), buf.returns.flatten()))
+        for key, value in critic_logs.items():
+            self.logger.record(f"train/{key}", value)
+        if hasattr(self.policy, "log_std"):
+            self.logger.record("train/std", th.exp(self.policy.log_std).mean().item())
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.last_solution = solution
+
+    def learn(
+        self: SelfCPO,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 1,
+        tb_log_name: str = "CPO",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfCPO:
+        return super().learn(
+            total_timesteps=total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
+
+
+__all__ = ["CPO", "CPO_CASES", "CPOSolution", "cpo_dual_solution"]

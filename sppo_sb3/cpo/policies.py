@@ -1,0 +1,7 @@
+"""Policies of CPO: SB3's actor-critic with an extra cost value head."""
+
+from sppo_sb3.common.on_policy import CostActorCriticPolicy
+
+MlpPolicy = CostActorCriticPolicy
+
+__all__ = ["MlpPolicy"]
