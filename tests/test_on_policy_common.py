@@ -142,3 +142,18 @@ def test_safety_metrics_logged(tmp_path) -> None:
     header = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
     assert {"safety/cumulative_violations", "safety/safety_rate", "safety/ep_cost_estimate"} <= set(header)
     assert model.safety_metrics.steps == 256
+
+
+@pytest.mark.parametrize("algo", [PDO, CPO, SAILR])
+def test_callbacks_see_costs_and_can_stop(algo: type, tmp_path) -> None:
+    from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback
+
+    class StopAt(BaseCallback):
+        def _on_step(self) -> bool:
+            assert "costs" in self.locals and "infos" in self.locals
+            return self.num_timesteps < 100
+
+    model = algo("MlpPolicy", "SafePointCircle-v0", n_steps=64, batch_size=32, policy_kwargs=TINY, seed=0)
+    model.learn(256, callback=CallbackList([CheckpointCallback(64, str(tmp_path)), StopAt()]))
+    assert model.num_timesteps == 100
+    assert len(list(tmp_path.glob("*.zip"))) == 1

@@ -343,7 +343,7 @@ class SafeOnPolicyMixin:
     # provided by OnPolicyAlgorithm
     env: VecEnv | None
     n_envs: int
-    policy: ActorCriticPolicy
+    policy: Any
     rollout_buffer: RolloutBuffer
     rollout_buffer_class: type[RolloutBuffer] | None
     gamma: float
@@ -414,9 +414,9 @@ class SafeOnPolicyMixin:
         n = len(rewards)
         return rewards, np.zeros(n, dtype=bool), np.ones(n, dtype=np.float32)
 
-    def _cost_values(self, obs_tensor: th.Tensor) -> th.Tensor | None:
+    def _cost_values(self, obs_tensor: th.Tensor | dict[str, th.Tensor]) -> th.Tensor | None:
         if isinstance(self.policy, CostActorCriticPolicy):
-            return self.policy.predict_cost_values(obs_tensor)
+            return self.policy.predict_cost_values(obs_tensor)  # type: ignore[arg-type]
         return None
 
     def collect_rollouts(
@@ -503,7 +503,7 @@ class SafeOnPolicyMixin:
             self._last_episode_starts = np.logical_or(dones, absorbed)
 
         with th.no_grad():
-            obs_tensor = obs_as_tensor(new_obs, self.device)
+            obs_tensor = obs_as_tensor(new_obs, self.device)  # type: ignore[arg-type]
             values = self.policy.predict_values(obs_tensor)
             last_cost_values = self._cost_values(obs_tensor)
         rollout_buffer.compute_returns_and_advantage(

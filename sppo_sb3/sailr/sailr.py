@@ -178,13 +178,13 @@ class SAILR(SafeOnPolicyMixin, PPO):
     def _resolve_rule(self, env: VecEnv) -> ShieldingRule | None:
         if self.shield_rule is not None:
             return self.shield_rule
-        if self.shield is None:
+        if not isinstance(self.shield, str):
             return None
-        env_id = self.shield
+        env_id: str | None = self.shield
         if env_id == "auto":
             spec = env.get_attr("spec", indices=[0])[0]
             env_id = spec.id if spec is not None else None
-        rule = default_shielding_rule(env_id)  # type: ignore[arg-type]
+        rule = default_shielding_rule(env_id)
         if rule is None:
             raise ValueError(
                 f"No shielding rule is registered for env id {env_id!r}: pass shield=YourRule() (a "
