@@ -71,7 +71,10 @@ class ShieldingRule(ABC):
             backup = self.backup_action(obs)
         n = len(obs)
         q = self.cost_value(np.concatenate([obs, obs]), np.concatenate([actions, backup]))
-        return q[:n] - q[n:]
+        adv = q[:n] - q[n:]
+        # Ā(s, ζ(s)) = 0 by definition (Proposition 1); a batched network may differ in the last bit by row position
+        adv[np.all(actions == backup, axis=1)] = 0.0
+        return adv
 
     def shield(self, obs: np.ndarray, actions: np.ndarray) -> ShieldDecision:
         """Shielded action of eq. 12: keep ``a`` where ``(s, a) ∉ I``, else execute the backup action ``a_ζ``.

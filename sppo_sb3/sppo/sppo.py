@@ -149,6 +149,11 @@ class SPPO(OffPolicyAlgorithm):
             self._setup_model()
 
     # ------------------------------------------------------------------ set-up
+    @staticmethod
+    def _wrap_env(env: GymEnv, verbose: int = 0, monitor_wrapper: bool = True) -> VecEnv:
+        check_spaces(env.observation_space, env.action_space)  # before SB3's own, less helpful, assertions
+        return OffPolicyAlgorithm._wrap_env(env, verbose, monitor_wrapper)
+
     def _setup_model(self) -> None:
         check_spaces(self.observation_space, self.action_space)
         self._setup_lr_schedule()
@@ -273,6 +278,7 @@ class SPPO(OffPolicyAlgorithm):
             if self._n_updates % self.target_update_interval == 0:
                 polyak_update(model.parameters(), target.parameters(), self.tau)
         self.policy.set_training_mode(False)
+        self.planner.mark_stale()
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/horizon", self.planner_config.horizon_at(self.num_timesteps))
         self.logger.record("train/min_std", self.planner_config.min_std_at(self.num_timesteps))

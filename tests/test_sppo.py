@@ -1,0 +1,185 @@
+"""SPPO as an SB3 algorithm: smoke runs, shielded training, persistence, determinism, errors."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.env_util import make_vec_env
+
+from sppo_sb3 import SPPO
+from sppo_sb3.common.costs import MissingCostError
+from sppo_sb3.shield import PointCircleShieldingRule
+from sppo_sb3.sppo.buffers import ShieldedReplayBuffer
+from sppo_sb3.sppo.topo import TOPOConfig, topo_update
+
+TINY = dict(
+    learning_starts=60,
+    batch_size=16,
+    horizon=3,
+    buffer_size=5_000,
+    policy_kwargs=dict(latent_dim=8, encoder_dim=16, hidden_dim=16),
+    planner_kwargs=dict(num_samples=16, num_elites=4, iterations=2, horizon_warmup=0),
+)
+
+
+def tiny_sppo(env="SafePointCircle-v0", **overrides) -> SPPO:
+    return SPPO("TOLDPolicy", env, **{**TINY, "seed": 0, **overrides})
+
+
+def test_smoke_learn_predict_and_metrics():
+    model = tiny_sppo().learn(150)
+    assert model.num_timesteps == 150
+    assert model.safety_metrics.steps == 150
+    obs = np.array([0.5, 0.5, 0.1, 0.0], dtype=np.float32)
+    action, state = model.predict(obs, deterministic=True)
+    assert action.shape == (2,) and state is None
+    assert np.all(np.abs(action) <= 1.0)
+    model.plan_at_predict = False
+    prior, _ = model.predict(np.stack([obs, obs]))
+    assert prior.shape == (2, 2)
+    np.testing.assert_array_equal(prior[0], prior[1])
+
+
+def test_every_executed_action_is_shielded_and_safe():
+    """Warm-up (random) and planning phases both: no violation with the shield, violations without it."""
+    shielded = tiny_sppo(learning_starts=600).learn(1_000)
+    assert shielded.safety_metrics.violations == 0
+    assert shielded.safety_metrics.interventions > 0
+    assert shielded.safety_metrics.safety_rate == 100.0
+    unshielded = tiny_sppo(learning_starts=600, shield=None).learn(1_000)
+    assert unshielded.safety_metrics.violations > 0
+    assert unshielded.safety_metrics.safety_rate < 100.0
+
+
+def test_b_tilde_holds_the_absorbing_relabel_of_real_interventions():
+    model = tiny_sppo(learning_starts=400).learn(400)
+    buffer = model.replay_buffer
+    n = buffer.pos
+    assert buffer.intervened[:n].any()
+    for t in np.flatnonzero(buffer.intervened[:n, 0]):
+        executed = model.policy.unscale_action(buffer.actions[t, 0])
+        backup = model.shield_rule.backup_action(buffer.observations[t, 0][None].astype(np.float64))[0]
+        np.testing.assert_allclose(executed, backup, atol=1e-5)  # B holds the safe action
+    # in the paper's absorbing MDP, nothing of an episode follows its first intervention
+    first = np.flatnonzero(buffer.intervened[:n, 0])[0]
+    episode_end = first + np.flatnonzero(buffer.dones[first:n, 0])[:1]
+    stop = int(episode_end[0]) + 1 if len(episode_end) else n
+    assert not buffer.relabel_valid[first + 1 : stop, 0].any()
+
+
+def test_n_envs_two_plans_all_envs_in_one_batch():
+    env = make_vec_env("SafePointCircle-v0", n_envs=2, seed=0)
+    model = tiny_sppo(env).learn(200)
+    assert model.replay_buffer.n_envs == 2
+    assert model.planner.prev_mean.shape[0] == 2
+    actions, _ = model.predict(env.reset(), episode_start=np.ones(2, dtype=bool))
+    assert actions.shape == (2, 2)
+
+
+def test_save_load_predict_and_resume_identically(tmp_path):
+    model = tiny_sppo().learn(120)
+    model.save(tmp_path / "sppo")
+    model.save_replay_buffer(tmp_path / "buffer")
+    loaded = SPPO.load(tmp_path / "sppo", env=model.get_env())
+    loaded.load_replay_buffer(tmp_path / "buffer")
+    obs = np.array([[0.2, -0.3, 0.5, 0.1]], dtype=np.float32)
+    th.manual_seed(7)
+    expected, _ = model.predict(obs, deterministic=True)
+    th.manual_seed(7)
+    got, _ = loaded.predict(obs, deterministic=True)
+    np.testing.assert_array_equal(expected, got)
+    for (name, a), b in zip(model.policy.state_dict().items(), loaded.policy.state_dict().values()):
+        assert th.equal(a, b), name
+    assert loaded.policy.optimizer.state_dict()["state"].keys() == model.policy.optimizer.state_dict()["state"].keys()
+    assert loaded.safety_metrics.steps == 120
+    loaded.learn(60, reset_num_timesteps=False)
+    assert loaded.num_timesteps == 180 and loaded.safety_metrics.steps == 180
+    assert loaded.replay_buffer.size() == 180
+
+
+def test_load_without_env_does_not_allocate_the_replay_buffer(tmp_path):
+    tiny_sppo(buffer_size=1_000_000).save(tmp_path / "sppo")
+    loaded = SPPO.load(tmp_path / "sppo")
+    assert loaded.replay_buffer is None
+    assert loaded.predict(np.zeros(4, dtype=np.float32))[0].shape == (2,)
+
+
+def test_seeded_runs_are_identical():
+    first, second = tiny_sppo(seed=3).learn(100), tiny_sppo(seed=3).learn(100)
+    for a, b in zip(first.policy.parameters(), second.policy.parameters()):
+        assert th.equal(a, b)
+
+
+def test_topo_loss_decreases_on_a_fixed_batch():
+    model = tiny_sppo(learning_starts=200).learn(200)  # fills B̃ with real (shielded) data, no updates yet
+    batch = model.replay_buffer.sample_sequences(64, 3)
+    cfg = TOPOConfig()
+    pol = model.policy
+    losses = [topo_update(pol.model, pol.model_target, pol.optimizer, pol.pi_optimizer, batch, cfg)["loss"] for _ in range(60)]
+    assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5])
+
+
+def test_actions_stay_inside_asymmetric_bounds():
+    env = gym.wrappers.RescaleAction(gym.make("Pendulum-v1"), np.float32(-0.5), np.float32(1.5))
+    model = tiny_sppo(env, learning_starts=20).learn(40)
+    actions = np.stack([model.predict(env.observation_space.sample())[0] for _ in range(20)])
+    assert actions.min() >= -0.5 and actions.max() <= 1.5
+    assert isinstance(model.replay_buffer, ShieldedReplayBuffer)
+
+
+class _DictObs(gym.Env):
+    observation_space = gym.spaces.Dict({"position": gym.spaces.Box(-1, 1, (2,), np.float32)})
+    action_space = gym.spaces.Box(-1, 1, (1,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        return self.observation_space.sample(), {}
+
+    def step(self, action):
+        return self.observation_space.sample(), 0.0, False, False, {}
+
+
+class _ImageObs(_DictObs):
+    observation_space = gym.spaces.Box(0, 255, (16, 16, 3), np.uint8)
+
+
+@pytest.mark.parametrize(
+    ("env", "error", "match"),
+    [
+        ("CartPole-v1", TypeError, "Box action space"),
+        (_DictObs(), TypeError, "FlattenObservation"),
+        (_ImageObs(), TypeError, "image observations are not supported"),
+    ],
+)
+def test_unsupported_spaces_are_rejected_with_a_clear_error(env, error, match):
+    with pytest.raises(error, match=match):
+        tiny_sppo(env)
+
+
+class _InfiniteBounds(gym.Env):
+    observation_space = gym.spaces.Box(-1, 1, (2,), np.float32)
+    action_space = gym.spaces.Box(-np.inf, np.inf, (1,), np.float32)
+
+    def reset(self, *, seed=None, options=None):
+        return np.zeros(2, np.float32), {}
+
+    def step(self, action):
+        return np.full(2, np.nan, np.float32), 0.0, False, False, {}
+
+
+def test_infinite_action_bounds_are_rejected():
+    with pytest.raises(ValueError, match="finite action bounds"):
+        tiny_sppo(_InfiniteBounds())
+
+
+def test_nan_observations_stop_training_with_a_clear_error():
+    env = _InfiniteBounds()
+    env.action_space = gym.spaces.Box(-1, 1, (1,), np.float32)
+    with pytest.raises(ValueError, match="non-finite observation"):
+        tiny_sppo(env).learn(10)
+
+
+def test_a_shield_on_an_env_without_cost_is_a_clear_error():
+    with pytest.raises(MissingCostError, match=r"info\['cost'\]"):
+        tiny_sppo("Pendulum-v1", shield=PointCircleShieldingRule(), learning_starts=5).learn(5)
