@@ -99,9 +99,9 @@ def test_save_load_predict_and_resume_identically(tmp_path):
     assert loaded.replay_buffer.size() == 180
 
 
-def test_load_without_env_does_not_allocate_the_replay_buffer(tmp_path):
+def test_loading_to_deploy_does_not_allocate_the_replay_buffer(tmp_path):
     tiny_sppo(buffer_size=1_000_000).save(tmp_path / "sppo")
-    loaded = SPPO.load(tmp_path / "sppo")
+    loaded = SPPO.load(tmp_path / "sppo", env=gym.make("SafePointCircle-v0"))
     assert loaded.replay_buffer is None
     assert loaded.predict(np.zeros(4, dtype=np.float32))[0].shape == (2,)
 

@@ -163,8 +163,6 @@ class SPPO(OffPolicyAlgorithm):
         self._convert_train_freq()
         if self.shield_rule is None:
             self.shield_rule = self._resolve_shield()
-        if self.env is not None:  # deployment-only loads do not allocate the training buffer
-            self._setup_replay_buffer()
         self.planner = MPPIPlanner(self.planner_config, self.n_envs, self.action_space.shape[0], self.device)
         warm_start = getattr(self, "planner_warm_start", None)
         if warm_start is not None and warm_start.shape == tuple(self.planner.prev_mean.shape):
@@ -184,6 +182,7 @@ class SPPO(OffPolicyAlgorithm):
         return default_shielding_rule(spec.id if spec is not None else None)
 
     def _setup_replay_buffer(self) -> None:
+        """Allocate ``B``/``B̃`` on the first ``learn``, so that loading a model to deploy it allocates nothing."""
         if self.replay_buffer is not None:
             return
         penalty = self.absorbing_penalty
