@@ -1,0 +1,60 @@
+"""``sppo-train`` / ``python -m sppo_sb3.train``: rl-zoo3's train command with the package's algorithms.
+
+Every rl-zoo3 flag works unchanged (``--algo sppo --env SafePointCircle-v0 -conf hyperparams/sppo.yml``,
+``-optimize``, ``--storage``, ...). On top of the zoo (see :mod:`sppo_sb3.zoo`): ``monitor.csv`` has the columns
+``episode_cost`` and ``episode_violations``, evaluations log ``eval/mean_cost``, the safety summary is printed at the
+end, and two extra flags set the violation budget of hyperparameter search:
+
+``--violation-budget B``  prune trials whose cumulative training violations exceed ``B`` (env: SPPO_VIOLATION_BUDGET)
+``--violation-penalty P``  instead of pruning, objective = return - P * max(0, violations - B) (env: SPPO_VIOLATION_PENALTY)
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+EXTRA_HELP = """
+sppo_sb3 options (besides rl-zoo3's):
+  --violation-budget B   hyperparameter search: prune a trial as soon as its cumulative training violations exceed B
+                         (default: $SPPO_VIOLATION_BUDGET, else no budget)
+  --violation-penalty P  hyperparameter search: train over-budget trials to the end and return
+                         mean eval return - P * max(0, violations - B) instead (default: $SPPO_VIOLATION_PENALTY)
+"""
+
+
+def _split_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
+    """Take the package's own flags out of ``argv``; the rest goes to rl-zoo3.
+
+    :param argv: the command-line arguments (without the program name).
+    """
+    parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
+    parser.add_argument("--violation-budget", type=float, default=None)
+    parser.add_argument("--violation-penalty", type=float, default=None)
+    return parser.parse_known_args(list(argv))
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """Run rl-zoo3's train command with the package's algorithms registered and its safety outputs.
+
+    :param argv: command-line arguments (default: ``sys.argv[1:]``).
+    """
+    from rl_zoo3 import train as zoo_train
+
+    from sppo_sb3.zoo import install
+
+    own, rest = _split_args(sys.argv[1:] if argv is None else argv)
+    install(violation_budget=own.violation_budget, violation_penalty=own.violation_penalty)
+    if "-h" in rest or "--help" in rest:
+        print(EXTRA_HELP)
+    saved_argv = sys.argv
+    sys.argv = [saved_argv[0] if saved_argv else "sppo-train", *rest]
+    try:
+        zoo_train.train()
+    finally:
+        sys.argv = saved_argv
+
+
+if __name__ == "__main__":
+    main()

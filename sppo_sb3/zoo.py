@@ -1,0 +1,402 @@
+"""rl-zoo3 integration: the package's algorithms, samplers and safety outputs, registered with the zoo.
+
+:func:`register_algos` adds ``sppo``, ``cpo``, ``pdo``, ``sailr`` and ``csc`` to rl-zoo3's ``ALGOS`` (an algorithm
+whose module does not import is skipped with a warning and listed in :data:`UNAVAILABLE`) and their Optuna
+samplers to ``HYPERPARAMS_SAMPLER``/``HYPERPARAMS_CONVERTER``. :func:`install` does that and makes rl-zoo3's train
+command cost-aware (used by ``sppo-train``):
+
+- every env that rl-zoo3 creates gets :class:`~sppo_sb3.common.monitor.EpisodeCostInfo` inside its ``Monitor``,
+  whose ``monitor.csv`` gains the columns ``episode_cost`` and ``episode_violations``;
+- the evaluation callback is :class:`~sppo_sb3.common.monitor.CostEvalCallback` (``eval/mean_cost`` beside
+  ``eval/mean_reward``, ``costs``/``violations`` in ``evaluations.npz``);
+- :class:`SafeExperimentManager` prints the model's safety summary at the end of training (and writes it to
+  ``safety_summary.json`` in the run folder), evaluates ``*_kwargs`` strings of the yml (``planner_kwargs:
+  "dict(...)"``) as the zoo does for ``policy_kwargs``, and gives hyperparameter search a violation budget.
+
+**Violation budget** (``--violation-budget B`` of ``sppo-train``, or ``SPPO_VIOLATION_BUDGET``): a trial whose
+*training* cumulative violations (``model.safety_metrics``) exceed ``B`` is stopped and pruned at once. With
+``--violation-penalty P`` (or ``SPPO_VIOLATION_PENALTY``) it is trained to the end instead and its objective becomes
+``mean eval return - P * max(0, violations - B)`` (``B`` defaults to 0). Every trial records
+``cumulative_violations``, ``safety_rate``, ``eval_mean_cost`` and ``eval_mean_reward`` as Optuna user attributes.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, ClassVar
+
+import optuna
+import yaml
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+import sppo_sb3  # noqa: F401  (registers the tasks with gymnasium)
+from sppo_sb3.common.monitor import CostEvalCallback, cost_monitored_make_vec_env
+
+#: zoo name -> (module, class) of the package's algorithms
+ALGO_IMPORTS: dict[str, tuple[str, str]] = {
+    "sppo": ("sppo_sb3.sppo", "SPPO"),
+    "cpo": ("sppo_sb3.cpo", "CPO"),
+    "pdo": ("sppo_sb3.pdo", "PDO"),
+    "sailr": ("sppo_sb3.sailr", "SAILR"),
+    "csc": ("sppo_sb3.csc", "CSC"),
+}
+#: the package's off-policy algorithms (replay buffer; rl-zoo3's enjoy passes them no ``buffer_size=1``, but SPPO
+#: allocates its buffer on the first ``learn`` only, so loading it to watch allocates nothing)
+OFF_POLICY_ALGOS: frozenset[str] = frozenset({"sppo"})
+#: keyword arguments given to ``load`` when a model is loaded to be watched (enjoy / record_video), not trained
+DEPLOY_LOAD_KWARGS: dict[str, dict[str, Any]] = {"csc": {"cost_buffer_size": 1}}
+#: algorithms that could not be imported, with the reason
+UNAVAILABLE: dict[str, str] = {}
+
+BUDGET_ENV_VAR = "SPPO_VIOLATION_BUDGET"
+PENALTY_ENV_VAR = "SPPO_VIOLATION_PENALTY"
+#: ``*_kwargs`` keys that rl-zoo3 handles itself (the others are evaluated when given as strings)
+_ZOO_KWARGS_KEYS = frozenset({"policy_kwargs", "replay_buffer_kwargs", "monitor_kwargs", "env_kwargs", "normalize_kwargs"})
+
+
+# ---------------------------------------------------------------------------------------------------- algorithms
+def algo_classes() -> dict[str, type[BaseAlgorithm]]:
+    """The package's algorithms that import, by zoo name (the others go to :data:`UNAVAILABLE`, with a warning)."""
+    classes: dict[str, type[BaseAlgorithm]] = {}
+    for name, (module_name, class_name) in ALGO_IMPORTS.items():
+        try:
+            classes[name] = getattr(importlib.import_module(module_name), class_name)
+            UNAVAILABLE.pop(name, None)
+        except Exception as exc:  # a module being written must not break the other algorithms
+            UNAVAILABLE[name] = f"{type(exc).__name__}: {exc}"
+            warnings.warn(f"sppo_sb3.zoo: algorithm {name!r} is not available ({UNAVAILABLE[name]})", stacklevel=2)
+    return classes
+
+
+def _deploy_class(cls: type[BaseAlgorithm], defaults: dict[str, Any]) -> type[BaseAlgorithm]:
+    """A subclass of ``cls`` whose ``load`` defaults to ``defaults`` (e.g. a 1-transition buffer to watch a model)."""
+
+    def load(klass: type[BaseAlgorithm], path: Any, *args: Any, **kwargs: Any) -> BaseAlgorithm:
+        return super(deploy, klass).load(path, *args, **{**defaults, **kwargs})  # type: ignore[misc]
+
+    deploy = type(cls.__name__, (cls,), {"load": classmethod(load), "__module__": cls.__module__})
+    return deploy
+
+
+def register_algos(deploy: bool = False) -> dict[str, type[BaseAlgorithm]]:
+    """Add the package's algorithms to rl-zoo3's ``ALGOS`` and their samplers to the zoo's Optuna tables.
+
+    :param deploy: register the classes for watching models (enjoy, record_video): their ``load`` then defaults to
+        :data:`DEPLOY_LOAD_KWARGS` (no training buffers). Never use it to train.
+    :return: the registered classes, by zoo name.
+    """
+    from rl_zoo3.utils import ALGOS
+
+    classes = algo_classes()
+    for name, cls in classes.items():
+        ALGOS[name] = _deploy_class(cls, DEPLOY_LOAD_KWARGS[name]) if deploy and name in DEPLOY_LOAD_KWARGS else cls
+    register_samplers(classes)
+    return classes
+
+
+# ---------------------------------------------------------------------------------------------------- samplers
+TOLD_SIZES: dict[str, dict[str, int]] = {
+    "tiny": {"latent_dim": 32, "encoder_dim": 64, "hidden_dim": 128},
+    "small": {"latent_dim": 50, "encoder_dim": 128, "hidden_dim": 256},
+    "tdmpc": {"latent_dim": 50, "encoder_dim": 256, "hidden_dim": 512},
+}
+
+
+def convert_sppo_params(sampled_params: dict[str, Any]) -> dict[str, Any]:
+    """SPPO constructor arguments from the raw values of :func:`sample_sppo_params` (a trial's ``params``).
+
+    :param sampled_params: the trial's parameters.
+    """
+    p = dict(sampled_params)
+    num_samples = 2 ** p.pop("num_samples_pow")
+    planner_kwargs = {
+        "num_samples": num_samples,
+        "num_elites": min(2 ** p.pop("num_elites_pow"), num_samples // 2),
+        "iterations": p.pop("iterations"),
+        "temperature": p.pop("temperature"),
+        "policy_fraction": p.pop("policy_fraction"),
+    }
+    return {
+        "learning_rate": p.pop("learning_rate"),
+        "batch_size": 2 ** p.pop("batch_size_pow"),
+        "gamma": 1.0 - p.pop("one_minus_gamma"),
+        "tau": p.pop("tau"),
+        "horizon": p.pop("horizon"),
+        "planner_kwargs": planner_kwargs,
+        "policy_kwargs": dict(TOLD_SIZES[p.pop("told_size")]),
+        **p,
+    }
+
+
+def sample_sppo_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]) -> dict[str, Any]:
+    """Optuna search space of SPPO (TOPO learning rate, batch, horizon, EMA; MPPI sizes; TOLD size).
+
+    Signature of rl-zoo3's samplers. ``planner_kwargs`` and ``policy_kwargs`` are merged into the yml's by
+    :class:`SafeExperimentManager` (fields that are not searched, e.g. ``horizon_warmup``, keep their yml value).
+
+    :param trial: the Optuna trial.
+    :param n_actions: action dimension (unused).
+    :param n_envs: number of envs (unused).
+    :param additional_args: rl-zoo3's extra arguments (unused).
+    """
+    return convert_sppo_params(
+        {
+            "learning_rate": trial.suggest_float("learning_rate", 1e-4, 3e-3, log=True),
+            "batch_size_pow": trial.suggest_int("batch_size_pow", 6, 9),
+            "one_minus_gamma": trial.suggest_float("one_minus_gamma", 0.002, 0.05, log=True),
+            "tau": trial.suggest_float("tau", 0.002, 0.05, log=True),
+            "horizon": trial.suggest_int("horizon", 3, 7),
+            "num_samples_pow": trial.suggest_int("num_samples_pow", 6, 9),
+            "num_elites_pow": trial.suggest_int("num_elites_pow", 3, 6),
+            "iterations": trial.suggest_int("iterations", 2, 6),
+            "temperature": trial.suggest_float("temperature", 0.1, 2.0, log=True),
+            "policy_fraction": trial.suggest_categorical("policy_fraction", [0.05, 0.1, 0.25]),
+            "told_size": trial.suggest_categorical("told_size", list(TOLD_SIZES)),
+        }
+    )
+
+
+def register_samplers(classes: dict[str, type[BaseAlgorithm]] | None = None) -> None:
+    """Register SPPO's sampler, and rl-zoo3's PPO sampler for PDO/SAILR/CSC and TRPO sampler for CPO.
+
+    Entries already present (a user's own sampler) are kept.
+
+    :param classes: the available algorithms (default: all that import).
+    """
+    from rl_zoo3 import hyperparams_opt as opt
+
+    classes = algo_classes() if classes is None else classes
+    table: dict[str, tuple[Callable[..., dict[str, Any]], Callable[[dict[str, Any]], dict[str, Any]]]] = {
+        "sppo": (sample_sppo_params, convert_sppo_params),
+        "pdo": (opt.sample_ppo_params, opt.convert_onpolicy_params),
+        "sailr": (opt.sample_ppo_params, opt.convert_onpolicy_params),
+        "csc": (opt.sample_ppo_params, opt.convert_onpolicy_params),
+        "cpo": (opt.sample_trpo_params, opt.convert_onpolicy_params),
+    }
+    for name, (sampler, converter) in table.items():
+        if name in classes:
+            opt.HYPERPARAMS_SAMPLER.setdefault(name, sampler)
+            opt.HYPERPARAMS_CONVERTER.setdefault(name, converter)
+
+
+# ---------------------------------------------------------------------------------------------------- hyperparams
+def eval_kwargs_strings(hyperparams: dict[str, Any]) -> dict[str, Any]:
+    """Evaluate the ``*_kwargs`` values given as Python strings (``planner_kwargs: "dict(num_samples=64)"``).
+
+    rl-zoo3 does this for ``policy_kwargs`` and ``replay_buffer_kwargs`` only; the package's algorithms have more
+    (``planner_kwargs``, ``topo_kwargs``). Done in place; returns ``hyperparams``.
+
+    :param hyperparams: one yml entry (or its processed form).
+    """
+    for key, value in list(hyperparams.items()):
+        if key.endswith("_kwargs") and key not in _ZOO_KWARGS_KEYS and isinstance(value, str):
+            hyperparams[key] = eval(value)  # same trust model as rl-zoo3's own eval of policy_kwargs
+    return hyperparams
+
+
+def merge_kwargs(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
+    """``{**base, **update}`` where ``*_kwargs`` dicts are merged one level deep instead of replaced.
+
+    :param base: e.g. the yml's hyperparameters.
+    :param update: e.g. a trial's sampled hyperparameters.
+    """
+    merged = dict(base)
+    for key, value in update.items():
+        old = merged.get(key)
+        if isinstance(old, str) and key.endswith("_kwargs"):
+            old = eval(old)
+        merged[key] = {**old, **value} if isinstance(old, dict) and isinstance(value, dict) else value
+    return merged
+
+
+def _env_float(name: str) -> float | None:
+    value = os.environ.get(name, "").strip()
+    return float(value) if value else None
+
+
+# ---------------------------------------------------------------------------------------------------- experiment
+def _trial_eval_callback_class() -> type:
+    from rl_zoo3.callbacks import TrialEvalCallback
+
+    class SafeTrialEvalCallback(CostEvalCallback, TrialEvalCallback):  # type: ignore[misc]
+        """rl-zoo3's ``TrialEvalCallback`` with evaluation cost and the violation budget of the study.
+
+        Reads the budget from the trial's user attributes (``violation_budget``, ``violation_budget_mode``) and, in
+        ``"prune"`` mode, stops the trial as soon as the model's cumulative training violations exceed it.
+        """
+
+        def _init_callback(self) -> None:
+            super()._init_callback()
+            attrs = self.trial.user_attrs
+            self.violation_budget: float | None = attrs.get("violation_budget")
+            self.prune_on_budget = attrs.get("violation_budget_mode") == "prune"
+
+        def _violations(self) -> float | None:
+            metrics = getattr(self.model, "safety_metrics", None)
+            return float(metrics.violations) if metrics is not None else None
+
+        def _on_step(self) -> bool:
+            if not super()._on_step():
+                return False
+            violations = self._violations()
+            budget = self.violation_budget
+            if self.prune_on_budget and budget is not None and violations is not None and violations > budget:
+                self.trial.set_user_attr("budget_exceeded_at", int(self.num_timesteps))
+                self.is_pruned = True
+                return False
+            return True
+
+        def _on_training_end(self) -> None:
+            metrics = getattr(self.model, "safety_metrics", None)
+            if metrics is not None:
+                summary = metrics.summary()
+                self.trial.set_user_attr("cumulative_violations", summary["cumulative_violations"])
+                self.trial.set_user_attr("safety_rate", summary["safety_rate"])
+                self.trial.set_user_attr("episodes", summary["episodes"])
+            self.trial.set_user_attr("eval_mean_reward", float(self.last_mean_reward))
+            self.trial.set_user_attr("eval_mean_cost", float(self.last_mean_cost))
+
+    return SafeTrialEvalCallback
+
+
+def _experiment_manager_class() -> type:
+    from rl_zoo3.exp_manager import ExperimentManager
+
+    class SafeExperimentManager(ExperimentManager):  # type: ignore[misc]
+        """rl-zoo3's ``ExperimentManager`` with the safety outputs and violation budget described in the module doc.
+
+        :cvar violation_budget: cumulative training violations allowed per trial (``None``: ``SPPO_VIOLATION_BUDGET``).
+        :cvar violation_penalty: objective penalty per violation above the budget (``None``:
+            ``SPPO_VIOLATION_PENALTY``; unset: over-budget trials are pruned).
+        """
+
+        violation_budget: ClassVar[float | None] = None
+        violation_penalty: ClassVar[float | None] = None
+
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            super().__init__(*args, **kwargs)
+            self.budget = self.violation_budget if self.violation_budget is not None else _env_float(BUDGET_ENV_VAR)
+            self.penalty = self.violation_penalty if self.violation_penalty is not None else _env_float(PENALTY_ENV_VAR)
+            if self.penalty is not None and self.budget is None:
+                self.budget = 0.0
+            self.safety_summary: dict[str, float] | None = None
+
+        # ---- hyperparameters
+        def _preprocess_hyperparams(self, hyperparams: dict[str, Any]) -> Any:
+            return super()._preprocess_hyperparams(eval_kwargs_strings(hyperparams))
+
+        def _yml_entry(self) -> dict[str, Any]:
+            with open(self.config) as file:
+                entries = yaml.safe_load(file)
+            gym_id = self.env_name.gym_id
+            return dict(entries.get(gym_id, entries.get("default", {})))
+
+        def load_trial(self, storage: str, study_name: str, trial_id: int | None = None, convert: bool = True) -> Any:
+            params = super().load_trial(storage, study_name, trial_id, convert)
+            if not convert or not str(self.config).endswith((".yml", ".yaml")):
+                return params
+            base = self._yml_entry()
+            return {key: value for key, value in merge_kwargs(base, params).items() if key in params}
+
+        def hyperparameters_optimization(self) -> None:
+            from rl_zoo3 import hyperparams_opt as opt
+
+            sampler = opt.HYPERPARAMS_SAMPLER[self.algo]
+            base = dict(self._hyperparams)
+
+            def merged_sampler(trial: optuna.Trial, *args: Any) -> dict[str, Any]:
+                sampled = sampler(trial, *args)
+                return {key: value for key, value in merge_kwargs(base, sampled).items() if key in sampled}
+
+            opt.HYPERPARAMS_SAMPLER[self.algo] = merged_sampler
+            try:
+                super().hyperparameters_optimization()
+            finally:
+                opt.HYPERPARAMS_SAMPLER[self.algo] = sampler
+
+        # ---- optimisation objective
+        def objective(self, trial: optuna.Trial) -> float:
+            if self.budget is not None:
+                trial.set_user_attr("violation_budget", self.budget)
+                trial.set_user_attr("violation_budget_mode", "prune" if self.penalty is None else "penalty")
+            value = float(super().objective(trial))
+            violations = trial.user_attrs.get("cumulative_violations")
+            if self.penalty is not None and self.budget is not None and violations is not None:
+                value -= self.penalty * max(0.0, float(violations) - self.budget)
+            return value
+
+        # ---- training
+        def learn(self, model: BaseAlgorithm) -> None:
+            super().learn(model)
+            self.report_safety(model)
+
+        def report_safety(self, model: BaseAlgorithm) -> None:
+            """Print the model's safety summary (SPEC §5) and write it to ``safety_summary.json`` in the run folder."""
+            metrics = getattr(model, "safety_metrics", None)
+            print(f"========== Safety summary: {self.algo} on {self.env_name.gym_id} ==========")
+            if metrics is None:
+                print(f"{type(model).__name__} keeps no safety metrics (see the episode_cost columns of monitor.csv)")
+                return
+            self.safety_summary = summary = metrics.summary()
+            print(metrics.format_summary())
+            for callback in self.callbacks:
+                if isinstance(callback, CostEvalCallback) and callback.evaluations_timesteps:
+                    print(
+                        f"last evaluation: mean return={callback.last_mean_reward:.2f}  "
+                        f"mean cost={callback.last_mean_cost:.2f}  mean violations={callback.last_mean_violations:.2f}"
+                    )
+                    summary = {**summary, "eval_mean_reward": callback.last_mean_reward}
+                    summary["eval_mean_cost"] = callback.last_mean_cost
+            Path(self.save_path).mkdir(parents=True, exist_ok=True)
+            with open(os.path.join(self.save_path, "safety_summary.json"), "w") as file:
+                json.dump({"num_timesteps": int(model.num_timesteps), **summary}, file, indent=2)
+
+    return SafeExperimentManager
+
+
+_CLASSES: dict[str, type] = {}
+
+
+def safe_experiment_manager_class() -> type:
+    """The :class:`SafeExperimentManager` class (a subclass of rl-zoo3's ``ExperimentManager``, built once)."""
+    if "manager" not in _CLASSES:
+        _CLASSES["manager"] = _experiment_manager_class()
+    return _CLASSES["manager"]
+
+
+def safe_trial_eval_callback_class() -> type:
+    """The ``SafeTrialEvalCallback`` class (a subclass of rl-zoo3's ``TrialEvalCallback``, built once)."""
+    if "trial_callback" not in _CLASSES:
+        _CLASSES["trial_callback"] = _trial_eval_callback_class()
+    return _CLASSES["trial_callback"]
+
+
+def install(violation_budget: float | None = None, violation_penalty: float | None = None) -> type:
+    """Register the algorithms and make rl-zoo3's train command cost-aware (idempotent).
+
+    Replaces, in rl-zoo3's ``exp_manager`` module, ``make_vec_env`` by
+    :func:`~sppo_sb3.common.monitor.cost_monitored_make_vec_env`, ``EvalCallback`` by
+    :class:`~sppo_sb3.common.monitor.CostEvalCallback` and ``TrialEvalCallback`` by ``SafeTrialEvalCallback`` (each a
+    superset of the original), and rl-zoo3's train ``ExperimentManager`` by :class:`SafeExperimentManager`.
+
+    :param violation_budget: see the module docstring (``None``: the ``SPPO_VIOLATION_BUDGET`` variable).
+    :param violation_penalty: see the module docstring (``None``: the ``SPPO_VIOLATION_PENALTY`` variable).
+    :return: the experiment manager class now used by ``rl_zoo3.train``.
+    """
+    import rl_zoo3.exp_manager as exp_manager
+    import rl_zoo3.train as zoo_train
+
+    register_algos()
+    exp_manager.make_vec_env = cost_monitored_make_vec_env  # type: ignore[assignment]
+    exp_manager.EvalCallback = CostEvalCallback  # type: ignore[misc]
+    exp_manager.TrialEvalCallback = safe_trial_eval_callback_class()  # type: ignore[misc]
+    manager = safe_experiment_manager_class()
+    manager.violation_budget = violation_budget
+    manager.violation_penalty = violation_penalty
+    zoo_train.ExperimentManager = manager  # type: ignore[misc]
+    return manager
