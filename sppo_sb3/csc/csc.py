@@ -5,8 +5,8 @@ Lagrangian): here a PPO clipped step, which is SB3's and the simplest to get rig
 
 * a conservative cost critic ``Q_C(s, a)`` trained off-policy from a replay buffer of every executed transition
   ``(s, a, c, s', done)``, with the CQL-style objective of the CSC paper's eq. 2: the Bellman error to
-  ``c + γ(1 - done) Q_C⁻(s', a' ~ π)`` plus ``α_cql (E_{(s,a)~D}[Q_C] - E_{s~D, a~μ}[Q_C])`` with ``μ`` the
-  policy and the uniform distribution — pushing ``Q_C`` up off the data and down on it, so it over-estimates cost;
+  ``c + γ_C(1 - done) Q_C⁻(s', a' ~ π)`` plus ``α_cql (E_{(s,a)~D}[Q_C] - E_{s~D, a~π}[Q_C])`` — pushing ``Q_C``
+  up on the policy's actions and down on the executed ones, so it over-estimates cost where the data is thin;
 * the action-rejection sampler of the CSC paper's Alg. 1 on every executed step (``rejection_sample_actions``);
 * the primal-dual update: the PPO advantage is ``(A_R - λ A_C) / (1 + λ)`` with the critic's cost advantage
   ``A_C(s, a) = Q_C(s, a) - E_{a'~π_old}[Q_C(s, a')]`` (the gradient of the Lagrangian's ``λ E_{a~π}[Q_C]`` term),
@@ -62,14 +62,14 @@ class CSC(PPO):
     :param target_kl: early stopping of the PPO epochs on this KL, or None.
     :param cost_limit: the limit ``χ`` of the expected episode cost of the CSC paper's constrained problem.
     :param cost_gamma: discount of the cost critic's Bellman target (None: ``gamma``, as in the CSC paper). A
-        shorter horizon (e.g. 0.95) makes ``Q_C`` a critic of imminent failures, easier to fit early on.
+        shorter horizon (e.g. 0.95) makes ``Q_C`` a critic of nearer failures.
     :param cost_threshold: the sampler's admissibility threshold ``ε`` on ``Q_C`` (CSC paper Alg. 1); None gives
         ``(1 - cost_gamma) χ``, the paper's per-step share of the episode limit, which is very strict for small ``χ``.
     :param n_action_samples: the most samples drawn per executed step (100 in the CSC paper).
     :param reject_in_predict: whether ``predict`` also applies the sampler (``deterministic=True``: the mean
         action first, then fixed-seed fallback samples, see :class:`CSCPolicy`).
     :param cql_alpha: weight ``α`` of the conservative regulariser of eq. 2 (0 gives a plain TD critic).
-    :param n_cql_actions: policy samples and as many uniform samples per state in the regulariser.
+    :param n_cql_actions: policy samples per state in the regulariser.
     :param cost_learning_rate: learning rate of the cost critic.
     :param cost_buffer_size: capacity of the cost critic's replay buffer (transitions).
     :param cost_batch_size: minibatch size of the cost critic.
@@ -329,8 +329,12 @@ class CSC(PPO):
     def train_cost_critic(self, gradient_steps: int, batch_size: int | None = None) -> dict[str, float]:
         """Fit ``Q_C`` with the conservative objective of the CSC paper's eq. 2 on the replay buffer.
 
-        ``loss = ½ (Q_C(s,a) - c - γ(1-done) Q_C⁻(s', a'~π))² + α_cql (Q_C(s,a) - mean_{a~μ} Q_C(s,a))``, ``μ`` being
-        ``n_cql_actions`` samples of ``π(·|s)`` and as many uniform actions; Polyak update of ``Q_C⁻`` each step.
+        ``loss = ½ (Q_C(s,a) - c - γ_C(1-done) Q_C⁻(s', a'~π))² + α_cql (Q_C(s,a) - mean_k Q_C(s, a_k ~ π))`` with
+        ``n_cql_actions`` samples ``a_k`` of ``π(·|s)``, as in eq. 2; Polyak update of ``Q_C⁻`` after each step.
+
+        Uniform actions (CQL's ``μ = Unif``) are left out on purpose: with a clipped Gaussian policy, half the data
+        sits on the Box's faces while uniform actions fill its interior, so the push-up would make the interior look
+        costlier than the saturated actions and the sampler's argmin would favour full-force actions.
 
         :return: mean TD loss, CQL gap and ``Q_C`` on the data over the steps (empty if the buffer is empty).
         """
@@ -349,12 +353,10 @@ class CSC(PPO):
                 target = data.rewards.flatten() + (1.0 - data.dones.flatten()) * self.cost_gamma * next_q
                 gaussian = policy.get_distribution(data.observations).distribution
                 pi_actions = policy.normalize_actions(gaussian.sample((self.n_cql_actions,)))
-                uniform_actions = 2.0 * th.rand_like(pi_actions) - 1.0
-                ood_actions = th.cat([pi_actions, uniform_actions], dim=0)
             features = policy.cost_features(data.observations)
             q_data = policy.cost_critic(features, data.actions)
             td_loss = 0.5 * F.mse_loss(q_data, target)
-            cql_gap = q_data.mean() - policy.cost_critic(features, ood_actions).mean()
+            cql_gap = q_data.mean() - policy.cost_critic(features, pi_actions).mean()
             loss = td_loss + self.cql_alpha * cql_gap
             policy.cost_optimizer.zero_grad()
             loss.backward()
