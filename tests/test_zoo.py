@@ -1,0 +1,257 @@
+"""rl-zoo3 integration: train / enjoy through the CLI for every algorithm, the yml files, Optuna with SQLite storage.
+
+Budgets and networks are tiny (50-step episodes through ``--env-kwargs max_episode_steps:50``): this file checks the
+plumbing, not learning.
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import optuna
+import pandas as pd
+import pytest
+import yaml
+
+from sppo_sb3 import zoo
+from sppo_sb3.common.monitor import COST_INFO_KEYWORDS, CostEvalCallback, EpisodeCostInfo, cost_monitored_make_vec_env
+
+REPO = Path(__file__).resolve().parents[1]
+HYPERPARAMS = REPO / "hyperparams"
+ENV = "SafePointCircle-v0"
+SHORT_EPISODES = ["--env-kwargs", "max_episode_steps:50"]
+
+# tiny networks and budgets per algorithm, as rl-zoo3 --hyperparams overrides
+TINY: dict[str, list[str]] = {
+    "sppo": [
+        "learning_starts:60",
+        "batch_size:16",
+        "horizon:2",
+        "policy_kwargs:dict(latent_dim=8, encoder_dim=16, hidden_dim=16)",
+        "planner_kwargs:dict(num_samples=8, num_elites=2, iterations=1, horizon_warmup=10, min_std_decay=10)",
+    ],
+    "pdo": ["n_steps:64", "batch_size:32", "n_epochs:1", "policy_kwargs:dict(net_arch=[8], cost_net_arch=[8])"],
+    "sailr": ["n_steps:64", "batch_size:32", "n_epochs:1", "policy_kwargs:dict(net_arch=[8])"],
+    "cpo": [
+        "n_steps:64",
+        "batch_size:32",
+        "n_critic_updates:1",
+        "cg_max_steps:3",
+        "policy_kwargs:dict(net_arch=[8], cost_net_arch=[8])",
+    ],
+    "csc": [
+        "n_steps:64",
+        "batch_size:32",
+        "n_epochs:1",
+        "n_action_samples:4",
+        "cost_buffer_size:1000",
+        "cost_batch_size:16",
+        "cost_gradient_steps:2",
+        "n_cost_baseline_samples:2",
+        "policy_kwargs:dict(net_arch=[8], cost_net_arch=[8])",
+    ],
+}
+ALGOS = sorted(TINY)
+
+
+@pytest.fixture(autouse=True)
+def _one_thread(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    monkeypatch.delenv(zoo.BUDGET_ENV_VAR, raising=False)
+    monkeypatch.delenv(zoo.PENALTY_ENV_VAR, raising=False)
+
+
+def train_args(algo: str, folder: Path, n_timesteps: int = 128, extra: list[str] | None = None) -> list[str]:
+    return [
+        "--algo", algo, "--env", ENV, "-conf", str(HYPERPARAMS / f"{algo}.yml"), "-n", str(n_timesteps),
+        "-f", str(folder), "--seed", "0", "--eval-freq", "-1", "--num-threads", "1", "--device", "cpu",
+        *SHORT_EPISODES, "--hyperparams", *TINY[algo], *(extra or []),
+    ]  # fmt: skip
+
+
+def test_all_algorithms_registered() -> None:
+    from rl_zoo3.hyperparams_opt import HYPERPARAMS_CONVERTER, HYPERPARAMS_SAMPLER
+    from rl_zoo3.utils import ALGOS as ZOO_ALGOS
+
+    classes = zoo.register_algos()
+    assert not zoo.UNAVAILABLE, zoo.UNAVAILABLE
+    for name in ALGOS:
+        assert ZOO_ALGOS[name] is classes[name]
+        assert name in HYPERPARAMS_SAMPLER and name in HYPERPARAMS_CONVERTER
+
+
+@pytest.mark.parametrize("algo", ALGOS)
+def test_train_then_enjoy(algo: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> None:
+    from sppo_sb3 import enjoy, train
+
+    train.main(train_args(algo, tmp_path, n_timesteps=150 if algo == "sppo" else 128))
+    run = tmp_path / algo / f"{ENV}_1"
+    assert (run / f"{ENV}.zip").is_file()
+    out = capsys.readouterr().out
+    assert f"Safety summary: {algo} on {ENV}" in out and "cumulative violations=" in out
+
+    # monitor.csv carries the episode cost columns
+    monitor = pd.read_csv(run / "0.monitor.csv", skiprows=1)
+    assert set(COST_INFO_KEYWORDS) <= set(monitor.columns) and len(monitor) >= 2
+    assert (monitor["episode_violations"] <= monitor["l"]).all()
+
+    cls = zoo.algo_classes()[algo]
+    loaded: list[Any] = []
+    original = cls.load.__func__  # type: ignore[attr-defined]
+
+    def spy(klass: type, *args: Any, **kwargs: Any) -> Any:
+        model = original(klass, *args, **kwargs)
+        loaded.append(model)
+        return model
+
+    monkeypatch.setattr(cls, "load", classmethod(spy))
+    enjoy.main(["--algo", algo, "--env", ENV, "-f", str(tmp_path), "--no-render", "-n", "60", "--device", "cpu"])
+    out = capsys.readouterr().out
+    assert "Episode Reward" in out and "Episode cost:" in out
+    assert len(loaded) == 1
+    if algo == "sppo":
+        assert loaded[0].replay_buffer is None  # watching a model allocates no replay buffer
+    if algo == "csc":
+        assert loaded[0].cost_buffer.buffer_size == 1
+
+
+def test_train_cli_prints_safety_summary(tmp_path: Path) -> None:
+    cmd = [sys.executable, "-m", "sppo_sb3.train", *train_args("pdo", tmp_path, 128)]
+    cmd[cmd.index("--eval-freq") + 1] = "64"
+    cmd += ["--eval-episodes", "2"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    result = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert f"Safety summary: pdo on {ENV}" in result.stdout
+    assert "cumulative violations=" in result.stdout and "safety rate=" in result.stdout
+    assert "eval/" in result.stdout and "mean_cost" in result.stdout
+
+    run = tmp_path / "pdo" / f"{ENV}_1"
+    summary = json.loads((run / "safety_summary.json").read_text())
+    assert summary["num_timesteps"] == 128 and summary["episodes"] >= 2
+    assert {"cumulative_violations", "safety_rate", "ep_return_mean", "eval_mean_cost"} <= set(summary)
+    evaluations = np.load(run / "evaluations.npz")
+    assert evaluations["costs"].shape == evaluations["results"].shape == (2, 2)
+
+
+def _yml_entries() -> list[tuple[str, str]]:
+    entries = []
+    for path in sorted(HYPERPARAMS.glob("*.yml")):
+        for env_id in yaml.safe_load(path.read_text()):
+            entries.append((path.stem, env_id))
+    return entries
+
+
+def test_yml_coverage() -> None:
+    entries = set(_yml_entries())
+    for algo in ALGOS:
+        assert {(algo, "SafePointCircle-v0"), (algo, "SafeHalfCheetahHeight-v0")} <= entries
+    assert {("sppo", "Pendulum-v1"), ("sppo", "HalfCheetah-v5")} <= entries
+
+
+@pytest.mark.parametrize(("algo", "env_id"), _yml_entries())
+def test_yml_entry_constructs(algo: str, env_id: str, tmp_path: Path) -> None:
+    """Each entry, processed by rl-zoo3's own code (schedules, policy_kwargs, normalize, ...), builds its model."""
+    manager_cls = zoo.install()
+    manager = manager_cls(
+        argparse.Namespace(), algo, env_id, str(tmp_path), eval_freq=-1, config=str(HYPERPARAMS / f"{algo}.yml"), verbose=0
+    )
+    cls = zoo.algo_classes()[algo]
+    accepted = set(inspect.signature(cls.__init__).parameters)
+    unprocessed, _ = manager.read_hyperparameters()
+    hyperparams, *_ = manager._preprocess_hyperparams(dict(unprocessed))
+    unknown = set(hyperparams) - accepted
+    assert not unknown, f"{algo}.yml[{env_id}] has keys {cls.__name__} does not accept: {unknown}"
+    model, _ = manager.setup_experiment()
+    assert isinstance(model, cls)
+    assert model.n_envs >= 1
+    model.env.close()
+
+
+def test_sppo_sampler_builds_models() -> None:
+    from sppo_sb3.sppo import SPPO
+
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0))
+    for _ in range(3):
+        params = zoo.sample_sppo_params(study.ask(), 1, 1, {})
+        assert params["planner_kwargs"]["num_elites"] <= params["planner_kwargs"]["num_samples"]
+        SPPO("TOLDPolicy", "Pendulum-v1", shield=None, **params)
+    trial = study.trials[0]
+    assert zoo.convert_sppo_params(trial.params) == zoo.sample_sppo_params(optuna.trial.FixedTrial(trial.params), 1, 1, {})
+
+
+def test_optimize_with_sqlite_storage(tmp_path: Path) -> None:
+    """Two trials through rl-zoo3's -optimize on an RDB (SQLite) study, with the violation penalty objective."""
+    from sppo_sb3 import train
+
+    storage = f"sqlite:///{tmp_path / 'study.db'}"
+    args = train_args("pdo", tmp_path, 128)
+    args[args.index("--eval-freq") : args.index("--eval-freq") + 2] = []
+    args += ["-optimize", "--n-trials", "2", "--n-jobs", "1", "--sampler", "random", "--pruner", "none"]
+    args += ["--n-evaluations", "1", "--eval-episodes", "1", "--storage", storage, "--study-name", "pdo_point"]
+    args += ["--no-optim-plots", "--violation-budget", "-1", "--violation-penalty", "10"]
+    train.main(args)
+
+    study = optuna.load_study(study_name="pdo_point", storage=storage)
+    complete = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    assert len(complete) == 2
+    for trial in complete:
+        attrs = trial.user_attrs
+        assert attrs["violation_budget"] == -1 and attrs["violation_budget_mode"] == "penalty"
+        expected = attrs["eval_mean_reward"] - 10 * (attrs["cumulative_violations"] + 1)
+        assert trial.value == pytest.approx(expected)
+        assert "n_steps_pow" in trial.params
+
+
+def test_violation_budget_prunes(tmp_path: Path) -> None:
+    from sppo_sb3.pdo import PDO
+
+    zoo.install()
+    callback_cls = zoo.safe_trial_eval_callback_class()
+    study = optuna.create_study()
+    trial = study.ask()
+    trial.set_user_attr("violation_budget", 2.0)
+    trial.set_user_attr("violation_budget_mode", "prune")
+    eval_env = cost_monitored_make_vec_env(ENV, n_envs=1, env_kwargs={"max_episode_steps": 50})
+    model = PDO("MlpPolicy", ENV, n_steps=64, batch_size=32, policy_kwargs={"net_arch": [8]})
+    callback = callback_cls(eval_env, trial, eval_freq=1000)
+    callback.init_callback(model)
+    assert callback.on_step()
+    model.safety_metrics.violations = 3
+    assert not callback.on_step() and callback.is_pruned
+    assert trial.user_attrs["budget_exceeded_at"] == 0
+
+
+def test_episode_cost_info_and_eval_callback(tmp_path: Path) -> None:
+    import gymnasium as gym
+    from stable_baselines3.common.logger import Logger
+    from stable_baselines3.common.monitor import Monitor
+
+    env = Monitor(EpisodeCostInfo(gym.make(ENV, max_episode_steps=20)), info_keywords=COST_INFO_KEYWORDS)
+    env.reset(seed=0)
+    total, done, info = 0.0, False, {}
+    while not done:
+        _, _, terminated, truncated, info = env.step(np.array([1.0, 0.0], dtype=np.float32))
+        total += info["cost"]
+        done = terminated or truncated
+    assert info["episode"]["episode_cost"] == total == info["episode_cost"]
+
+    from sppo_sb3.pdo import PDO
+
+    eval_env = cost_monitored_make_vec_env(ENV, n_envs=2, env_kwargs={"max_episode_steps": 20})
+    model = PDO("MlpPolicy", ENV, n_steps=32, batch_size=32, policy_kwargs={"net_arch": [8]})
+    model.set_logger(Logger(folder=None, output_formats=[]))
+    callback = CostEvalCallback(eval_env, n_eval_episodes=3, eval_freq=1, log_path=str(tmp_path), verbose=0)
+    callback.init_callback(model)
+    callback.on_step()
+    data = np.load(tmp_path / "evaluations.npz")
+    assert data["costs"].shape == (1, 3) and data["violations"].shape == (1, 3)
+    assert np.isfinite(callback.last_mean_cost)
