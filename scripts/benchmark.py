@@ -35,6 +35,7 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import re
@@ -148,9 +149,11 @@ def _load_yml(path: Path) -> dict[str, Any]:
 
 
 def _zoo_hyperparams_path(algo: str) -> Path:
-    import rl_zoo3
-
-    return Path(rl_zoo3.__file__).parent / "hyperparams" / f"{algo}.yml"
+    """rl-zoo3's own ``hyperparams/ALGO.yml`` (located without importing rl-zoo3, which is slow to import)."""
+    spec = importlib.util.find_spec("rl_zoo3")
+    if spec is None or spec.origin is None:
+        raise ValueError("rl-zoo3 is not installed")
+    return Path(spec.origin).parent / "hyperparams" / f"{algo}.yml"
 
 
 def _other_versions(task: str, entries: dict[str, Any]) -> list[str]:

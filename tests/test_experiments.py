@@ -1,0 +1,200 @@
+"""The experiment tooling end to end: scripts/benchmark.py on a tiny grid, then scripts/plot_results.py on its output.
+
+2 algorithms x 1 task x 2 seeds with a few hundred env steps and tiny networks (a hyperparameter folder written to
+``tmp_path``), each run a real ``python -m sppo_sb3.train`` subprocess. Most of the time is the runs' start-up.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import pandas as pd
+import pytest
+
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+TASK = "SafePointCircle-v0"
+ALGOS = ("pdo", "sailr")
+SEEDS = (0, 1)
+STEPS = 512
+
+TINY_HYPERPARAMS = {
+    "pdo.yml": f"""
+{TASK}:
+  n_timesteps: {STEPS}
+  policy: 'MlpPolicy'
+  n_steps: 256
+  batch_size: 64
+  n_epochs: 1
+  cost_limit: 0.05
+  policy_kwargs: "dict(net_arch=dict(pi=[8], vf=[8]), cost_net_arch=[8])"
+""",
+    "sailr.yml": f"""
+{TASK}:
+  n_timesteps: {STEPS}
+  policy: 'MlpPolicy'
+  shield: 'auto'
+  n_steps: 256
+  batch_size: 64
+  n_epochs: 1
+  policy_kwargs: "dict(net_arch=dict(pi=[8], vf=[8]))"
+""",
+}
+SUMMARY_KEYS = {
+    "task",
+    "algo",
+    "seed",
+    "steps",
+    "episodes",
+    "return_last_n",
+    "cumulative_violations",
+    "safety_rate",
+    "cumulative_interventions",
+    "wall_clock_s",
+    "steps_per_s",
+    "command",
+}
+
+
+def _load_script(name: str) -> ModuleType:
+    """Import ``scripts/<name>.py`` as a module (scripts/ is not a package)."""
+    module_name = f"_sppo_scripts_{name}"
+    if module_name in sys.modules:
+        return sys.modules[module_name]
+    spec = importlib.util.spec_from_file_location(module_name, SCRIPTS / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[module_name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.fixture(scope="module")
+def benchmark() -> ModuleType:
+    return _load_script("benchmark")
+
+
+@pytest.fixture(scope="module")
+def tiny_hyperparams(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("hyperparams")
+    for name, text in TINY_HYPERPARAMS.items():
+        (folder / name).write_text(text)
+    return folder
+
+
+def _grid_args(out: Path, hyperparams: Path) -> list[str]:
+    return [
+        "--algos",
+        *ALGOS,
+        "--tasks",
+        TASK,
+        "--seeds",
+        str(len(SEEDS)),
+        "--steps",
+        str(STEPS),
+        "--hyperparams-dir",
+        str(hyperparams),
+        "--device",
+        "cpu",
+        "--workers",
+        "2",
+        "--out",
+        str(out),
+    ]
+
+
+@pytest.fixture(scope="module")
+def grid(benchmark: ModuleType, tiny_hyperparams: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Run the tiny grid once for the tests of this module."""
+    out = tmp_path_factory.mktemp("results")
+    assert benchmark.main(_grid_args(out, tiny_hyperparams)) == 0
+    return out
+
+
+def test_runner_writes_curves_and_summaries(benchmark: ModuleType, grid: Path) -> None:
+    for algo in ALGOS:
+        for seed in SEEDS:
+            run_dir = grid / TASK / algo / f"seed_{seed}"
+            for name in ("DONE", "summary.json", "curve.csv", "train.log", "hyperparams.yml"):
+                assert (run_dir / name).is_file(), f"{run_dir / name} missing"
+            assert not (run_dir / "FAILED").exists()
+            assert list((run_dir / "zoo").rglob("*monitor.csv")), "rl-zoo3's monitor.csv missing"
+            curve = pd.read_csv(run_dir / "curve.csv")
+            assert tuple(curve.columns) == benchmark.CURVE_COLUMNS
+            assert len(curve) >= 1 and curve["timesteps"].is_monotonic_increasing
+            assert (curve["cumulative_violations"] == curve["violations"].cumsum()).all()
+            summary = json.loads((run_dir / "summary.json").read_text())
+            assert set(summary) >= SUMMARY_KEYS
+            assert (summary["task"], summary["algo"], summary["seed"]) == (TASK, algo, seed)
+            assert summary["steps"] >= STEPS and summary["episodes"] >= 1
+            assert 0.0 <= summary["safety_rate"] <= 100.0
+            assert summary["safety_source"] == "safety_metrics"  # the package's algorithms keep SafetyMetrics
+            assert "-m sppo_sb3.train" in summary["command"] and f"--seed {seed}" in summary["command"]
+
+
+def test_runner_skips_finished_runs(
+    benchmark: ModuleType, grid: Path, tiny_hyperparams: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    markers = sorted(grid.glob("*/*/seed_*/DONE"))
+    assert len(markers) == len(ALGOS) * len(SEEDS)
+    stamps = [m.stat().st_mtime_ns for m in markers]
+    assert benchmark.main(_grid_args(grid, tiny_hyperparams)) == 0
+    assert f"{len(markers)} already finished, 0 to run" in capsys.readouterr().out
+    assert [m.stat().st_mtime_ns for m in markers] == stamps
+
+
+def test_plotter_writes_figures_and_tables(grid: Path, tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    plot = _load_script("plot_results")
+    out = tmp_path / "figures"
+    assert plot.main([str(grid), "--out", str(out)]) == 0
+    for name in ("learning_curves.png", "violations.png", "cumulative_violations.png"):
+        assert (out / name).stat().st_size > 1000
+    tables = (out / "tables.md").read_text()
+    assert "Table I: Point Robot" in tables
+    for column in ("Violations (10^*)", "Safety rate (%)", "Paper: violations", "Paper: safety rate (%)"):
+        assert column in tables
+    assert "| PDO |" in tables and "| SAILR |" in tables
+    assert "74.53 ± 7.53" in tables and "97.56 ± 0.95" in tables  # the paper's Table I beside ours
+    aggregate = pd.read_csv(out / "aggregate.csv")
+    assert set(aggregate["algo"]) == set(ALGOS) and (aggregate["seeds"] == len(SEEDS)).all()
+    assert set(aggregate) >= {"cumulative_violations_mean", "safety_rate_mean", "safety_rate_std", "return_last_n_mean"}
+    # Fig. 7 mode on the same folder: return curves and a returns table
+    assert plot.main([str(grid), "--out", str(out), "--fig7"]) == 0
+    assert (out / "fig7_curves.png").is_file() and "| Return (last episodes) |" in (out / "fig7_table.md").read_text()
+
+
+def test_order_of_magnitude_notation() -> None:
+    plot = _load_script("plot_results")
+    assert [plot.order_of_magnitude(v) for v in (0, 3, 10, 99, 250, 4000)] == ["0", "10 ↓", "10 ↑", "10 ↑", "10^2 ↑", "10^3 ↑"]
+
+
+def test_steps_and_config_resolution(benchmark: ModuleType, tiny_hyperparams: Path) -> None:
+    assert benchmark.parse_steps(["1e4", f"{TASK}=300"]) == (10000, {TASK: 300})
+    with pytest.raises(ValueError, match="TASK=N"):
+        benchmark.parse_steps(["lots"])
+    # the package's algorithms need an entry for the task
+    with pytest.raises(ValueError, match="no entry for Hopper-v5"):
+        benchmark.resolve_config("pdo", "Hopper-v5", tiny_hyperparams)
+    # rl-zoo3's built-in algorithms: its own file, or its -v4 entry under the -v5 id (Fig. 7)
+    assert benchmark.resolve_config("ppo", "CartPole-v1", tiny_hyperparams) is None
+    config = benchmark.resolve_config("ddpg", "HalfCheetah-v5", tiny_hyperparams)
+    assert config is not None and "HalfCheetah-v5:" in config and "HalfCheetah-v4" in config
+
+
+def test_runner_on_local_ray(benchmark: ModuleType, tiny_hyperparams: Path, tmp_path: Path) -> None:
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False)
+    try:
+        args = _grid_args(tmp_path, tiny_hyperparams)
+        args[args.index("--algos") + 1 : args.index("--tasks")] = ["pdo"]
+        args[args.index("--seeds") + 1] = "1"
+        assert benchmark.main([*args, "--ray-address", "local"]) == 0
+    finally:
+        ray.shutdown()
+    run_dir = tmp_path / TASK / "pdo" / "seed_0"
+    assert (run_dir / "DONE").is_file() and (run_dir / "train.log").is_file()
+    assert tuple(pd.read_csv(run_dir / "curve.csv").columns) == benchmark.CURVE_COLUMNS
