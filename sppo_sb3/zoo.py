@@ -30,9 +30,17 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ClassVar
 
+import numpy as np
 import optuna
+import rl_zoo3.exp_manager as zoo_exp_manager
+import torch as th
 import yaml
+from rl_zoo3 import hyperparams_opt as zoo_opt
+from rl_zoo3.callbacks import TrialEvalCallback
+from rl_zoo3.exp_manager import ExperimentManager
+from rl_zoo3.utils import ALGOS as ZOO_ALGOS
 from stable_baselines3.common.base_class import BaseAlgorithm
+from torch import nn
 
 import sppo_sb3  # noqa: F401  (registers the tasks with gymnasium)
 from sppo_sb3.common.monitor import CostEvalCallback, cost_monitored_make_vec_env
@@ -77,10 +85,9 @@ def _deploy_class(cls: type[BaseAlgorithm], defaults: dict[str, Any]) -> type[Ba
     """A subclass of ``cls`` whose ``load`` defaults to ``defaults`` (e.g. a 1-transition buffer to watch a model)."""
 
     def load(klass: type[BaseAlgorithm], path: Any, *args: Any, **kwargs: Any) -> BaseAlgorithm:
-        return super(deploy, klass).load(path, *args, **{**defaults, **kwargs})  # type: ignore[misc]
+        return cls.load.__func__(klass, path, *args, **{**defaults, **kwargs})  # type: ignore[attr-defined]
 
-    deploy = type(cls.__name__, (cls,), {"load": classmethod(load), "__module__": cls.__module__})
-    return deploy
+    return type(cls.__name__, (cls,), {"load": classmethod(load), "__module__": cls.__module__})
 
 
 def register_algos(deploy: bool = False) -> dict[str, type[BaseAlgorithm]]:
@@ -90,11 +97,9 @@ def register_algos(deploy: bool = False) -> dict[str, type[BaseAlgorithm]]:
         :data:`DEPLOY_LOAD_KWARGS` (no training buffers). Never use it to train.
     :return: the registered classes, by zoo name.
     """
-    from rl_zoo3.utils import ALGOS
-
     classes = algo_classes()
     for name, cls in classes.items():
-        ALGOS[name] = _deploy_class(cls, DEPLOY_LOAD_KWARGS[name]) if deploy and name in DEPLOY_LOAD_KWARGS else cls
+        ZOO_ALGOS[name] = _deploy_class(cls, DEPLOY_LOAD_KWARGS[name]) if deploy and name in DEPLOY_LOAD_KWARGS else cls
     register_samplers(classes)
     return classes
 
@@ -168,8 +173,7 @@ def register_samplers(classes: dict[str, type[BaseAlgorithm]] | None = None) -> 
 
     :param classes: the available algorithms (default: all that import).
     """
-    from rl_zoo3 import hyperparams_opt as opt
-
+    opt = zoo_opt  # rl-zoo3 keeps its samplers in hyperparams_opt
     classes = algo_classes() if classes is None else classes
     table: dict[str, tuple[Callable[..., dict[str, Any]], Callable[[dict[str, Any]], dict[str, Any]]]] = {
         "sppo": (sample_sppo_params, convert_sppo_params),
@@ -180,11 +184,16 @@ def register_samplers(classes: dict[str, type[BaseAlgorithm]] | None = None) -> 
     }
     for name, (sampler, converter) in table.items():
         if name in classes:
-            opt.HYPERPARAMS_SAMPLER.setdefault(name, sampler)
-            opt.HYPERPARAMS_CONVERTER.setdefault(name, converter)
+            opt.HYPERPARAMS_SAMPLER.setdefault(name, sampler)  # type: ignore[arg-type]
+            opt.HYPERPARAMS_CONVERTER.setdefault(name, converter)  # type: ignore[arg-type]
 
 
 # ---------------------------------------------------------------------------------------------------- hyperparams
+def _eval(source: str) -> Any:
+    """Evaluate a yml string as rl-zoo3 does (``nn``, ``th`` and ``np`` in scope: ``activation_fn=nn.ReLU``)."""
+    return eval(source, {"nn": nn, "th": th, "np": np})  # same trust model as rl-zoo3's own eval of policy_kwargs
+
+
 def eval_kwargs_strings(hyperparams: dict[str, Any]) -> dict[str, Any]:
     """Evaluate the ``*_kwargs`` values given as Python strings (``planner_kwargs: "dict(num_samples=64)"``).
 
@@ -195,7 +204,7 @@ def eval_kwargs_strings(hyperparams: dict[str, Any]) -> dict[str, Any]:
     """
     for key, value in list(hyperparams.items()):
         if key.endswith("_kwargs") and key not in _ZOO_KWARGS_KEYS and isinstance(value, str):
-            hyperparams[key] = eval(value)  # same trust model as rl-zoo3's own eval of policy_kwargs
+            hyperparams[key] = _eval(value)
     return hyperparams
 
 
@@ -209,7 +218,7 @@ def merge_kwargs(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]
     for key, value in update.items():
         old = merged.get(key)
         if isinstance(old, str) and key.endswith("_kwargs"):
-            old = eval(old)
+            old = _eval(old)
         merged[key] = {**old, **value} if isinstance(old, dict) and isinstance(value, dict) else value
     return merged
 
@@ -220,163 +229,135 @@ def _env_float(name: str) -> float | None:
 
 
 # ---------------------------------------------------------------------------------------------------- experiment
-def _trial_eval_callback_class() -> type:
-    from rl_zoo3.callbacks import TrialEvalCallback
+class SafeTrialEvalCallback(CostEvalCallback, TrialEvalCallback):
+    """rl-zoo3's ``TrialEvalCallback`` with evaluation cost and the violation budget of the study.
 
-    class SafeTrialEvalCallback(CostEvalCallback, TrialEvalCallback):  # type: ignore[misc]
-        """rl-zoo3's ``TrialEvalCallback`` with evaluation cost and the violation budget of the study.
+    Reads the budget from the trial's user attributes (``violation_budget``, ``violation_budget_mode``) and, in
+    ``"prune"`` mode, stops the trial as soon as the model's cumulative training violations exceed it.
+    """
 
-        Reads the budget from the trial's user attributes (``violation_budget``, ``violation_budget_mode``) and, in
-        ``"prune"`` mode, stops the trial as soon as the model's cumulative training violations exceed it.
-        """
+    def _init_callback(self) -> None:
+        super()._init_callback()
+        attrs = self.trial.user_attrs
+        self.violation_budget: float | None = attrs.get("violation_budget")
+        self.prune_on_budget = attrs.get("violation_budget_mode") == "prune"
 
-        def _init_callback(self) -> None:
-            super()._init_callback()
-            attrs = self.trial.user_attrs
-            self.violation_budget: float | None = attrs.get("violation_budget")
-            self.prune_on_budget = attrs.get("violation_budget_mode") == "prune"
+    def _violations(self) -> float | None:
+        metrics = getattr(self.model, "safety_metrics", None)
+        return float(metrics.violations) if metrics is not None else None
 
-        def _violations(self) -> float | None:
-            metrics = getattr(self.model, "safety_metrics", None)
-            return float(metrics.violations) if metrics is not None else None
+    def _on_step(self) -> bool:
+        if not super()._on_step():
+            return False
+        violations = self._violations()
+        budget = self.violation_budget
+        if self.prune_on_budget and budget is not None and violations is not None and violations > budget:
+            self.trial.set_user_attr("budget_exceeded_at", int(self.num_timesteps))
+            self.is_pruned = True
+            return False
+        return True
 
-        def _on_step(self) -> bool:
-            if not super()._on_step():
-                return False
-            violations = self._violations()
-            budget = self.violation_budget
-            if self.prune_on_budget and budget is not None and violations is not None and violations > budget:
-                self.trial.set_user_attr("budget_exceeded_at", int(self.num_timesteps))
-                self.is_pruned = True
-                return False
-            return True
-
-        def _on_training_end(self) -> None:
-            metrics = getattr(self.model, "safety_metrics", None)
-            if metrics is not None:
-                summary = metrics.summary()
-                self.trial.set_user_attr("cumulative_violations", summary["cumulative_violations"])
-                self.trial.set_user_attr("safety_rate", summary["safety_rate"])
-                self.trial.set_user_attr("episodes", summary["episodes"])
-            self.trial.set_user_attr("eval_mean_reward", float(self.last_mean_reward))
-            self.trial.set_user_attr("eval_mean_cost", float(self.last_mean_cost))
-
-    return SafeTrialEvalCallback
+    def _on_training_end(self) -> None:
+        metrics = getattr(self.model, "safety_metrics", None)
+        if metrics is not None:
+            summary = metrics.summary()
+            self.trial.set_user_attr("cumulative_violations", summary["cumulative_violations"])
+            self.trial.set_user_attr("safety_rate", summary["safety_rate"])
+            self.trial.set_user_attr("episodes", summary["episodes"])
+        self.trial.set_user_attr("eval_mean_reward", float(self.last_mean_reward))
+        self.trial.set_user_attr("eval_mean_cost", float(self.last_mean_cost))
 
 
-def _experiment_manager_class() -> type:
-    from rl_zoo3.exp_manager import ExperimentManager
+class SafeExperimentManager(ExperimentManager):
+    """rl-zoo3's ``ExperimentManager`` with the safety outputs and violation budget described in the module doc.
 
-    class SafeExperimentManager(ExperimentManager):  # type: ignore[misc]
-        """rl-zoo3's ``ExperimentManager`` with the safety outputs and violation budget described in the module doc.
+    :cvar violation_budget: cumulative training violations allowed per trial (``None``: ``SPPO_VIOLATION_BUDGET``).
+    :cvar violation_penalty: objective penalty per violation above the budget (``None``:
+        ``SPPO_VIOLATION_PENALTY``; unset: over-budget trials are pruned).
+    """
 
-        :cvar violation_budget: cumulative training violations allowed per trial (``None``: ``SPPO_VIOLATION_BUDGET``).
-        :cvar violation_penalty: objective penalty per violation above the budget (``None``:
-            ``SPPO_VIOLATION_PENALTY``; unset: over-budget trials are pruned).
-        """
+    violation_budget: ClassVar[float | None] = None
+    violation_penalty: ClassVar[float | None] = None
 
-        violation_budget: ClassVar[float | None] = None
-        violation_penalty: ClassVar[float | None] = None
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.budget = self.violation_budget if self.violation_budget is not None else _env_float(BUDGET_ENV_VAR)
+        self.penalty = self.violation_penalty if self.violation_penalty is not None else _env_float(PENALTY_ENV_VAR)
+        if self.penalty is not None and self.budget is None:
+            self.budget = 0.0
+        self.safety_summary: dict[str, float] | None = None
 
-        def __init__(self, *args: Any, **kwargs: Any) -> None:
-            super().__init__(*args, **kwargs)
-            self.budget = self.violation_budget if self.violation_budget is not None else _env_float(BUDGET_ENV_VAR)
-            self.penalty = self.violation_penalty if self.violation_penalty is not None else _env_float(PENALTY_ENV_VAR)
-            if self.penalty is not None and self.budget is None:
-                self.budget = 0.0
-            self.safety_summary: dict[str, float] | None = None
+    # ---- hyperparameters
+    def _preprocess_hyperparams(self, hyperparams: dict[str, Any]) -> Any:
+        return super()._preprocess_hyperparams(eval_kwargs_strings(hyperparams))
 
-        # ---- hyperparameters
-        def _preprocess_hyperparams(self, hyperparams: dict[str, Any]) -> Any:
-            return super()._preprocess_hyperparams(eval_kwargs_strings(hyperparams))
+    def _yml_entry(self) -> dict[str, Any]:
+        with open(self.config) as file:
+            entries = yaml.safe_load(file)
+        gym_id = self.env_name.gym_id
+        return dict(entries.get(gym_id, entries.get("default", {})))
 
-        def _yml_entry(self) -> dict[str, Any]:
-            with open(self.config) as file:
-                entries = yaml.safe_load(file)
-            gym_id = self.env_name.gym_id
-            return dict(entries.get(gym_id, entries.get("default", {})))
+    def load_trial(self, storage: str, study_name: str, trial_id: int | None = None, convert: bool = True) -> Any:
+        params = super().load_trial(storage, study_name, trial_id, convert)
+        if not convert or not str(self.config).endswith((".yml", ".yaml")):
+            return params
+        base = self._yml_entry()
+        return {key: value for key, value in merge_kwargs(base, params).items() if key in params}
 
-        def load_trial(self, storage: str, study_name: str, trial_id: int | None = None, convert: bool = True) -> Any:
-            params = super().load_trial(storage, study_name, trial_id, convert)
-            if not convert or not str(self.config).endswith((".yml", ".yaml")):
-                return params
-            base = self._yml_entry()
-            return {key: value for key, value in merge_kwargs(base, params).items() if key in params}
+    def hyperparameters_optimization(self) -> None:
+        opt = zoo_opt
+        sampler = opt.HYPERPARAMS_SAMPLER[self.algo]
+        base = dict(self._hyperparams)
 
-        def hyperparameters_optimization(self) -> None:
-            from rl_zoo3 import hyperparams_opt as opt
+        def merged_sampler(trial: optuna.Trial, *args: Any) -> dict[str, Any]:
+            sampled = sampler(trial, *args)
+            return {key: value for key, value in merge_kwargs(base, sampled).items() if key in sampled}
 
-            sampler = opt.HYPERPARAMS_SAMPLER[self.algo]
-            base = dict(self._hyperparams)
+        opt.HYPERPARAMS_SAMPLER[self.algo] = merged_sampler  # type: ignore[assignment]
+        try:
+            super().hyperparameters_optimization()
+        finally:
+            opt.HYPERPARAMS_SAMPLER[self.algo] = sampler
 
-            def merged_sampler(trial: optuna.Trial, *args: Any) -> dict[str, Any]:
-                sampled = sampler(trial, *args)
-                return {key: value for key, value in merge_kwargs(base, sampled).items() if key in sampled}
+    # ---- optimisation objective
+    def objective(self, trial: optuna.Trial) -> float:
+        if self.budget is not None:
+            trial.set_user_attr("violation_budget", self.budget)
+            trial.set_user_attr("violation_budget_mode", "prune" if self.penalty is None else "penalty")
+        value = float(super().objective(trial))
+        violations = trial.user_attrs.get("cumulative_violations")
+        if self.penalty is not None and self.budget is not None and violations is not None:
+            value -= self.penalty * max(0.0, float(violations) - self.budget)
+        return value
 
-            opt.HYPERPARAMS_SAMPLER[self.algo] = merged_sampler
-            try:
-                super().hyperparameters_optimization()
-            finally:
-                opt.HYPERPARAMS_SAMPLER[self.algo] = sampler
+    # ---- training
+    def learn(self, model: BaseAlgorithm) -> None:
+        super().learn(model)
+        self.report_safety(model)
 
-        # ---- optimisation objective
-        def objective(self, trial: optuna.Trial) -> float:
-            if self.budget is not None:
-                trial.set_user_attr("violation_budget", self.budget)
-                trial.set_user_attr("violation_budget_mode", "prune" if self.penalty is None else "penalty")
-            value = float(super().objective(trial))
-            violations = trial.user_attrs.get("cumulative_violations")
-            if self.penalty is not None and self.budget is not None and violations is not None:
-                value -= self.penalty * max(0.0, float(violations) - self.budget)
-            return value
-
-        # ---- training
-        def learn(self, model: BaseAlgorithm) -> None:
-            super().learn(model)
-            self.report_safety(model)
-
-        def report_safety(self, model: BaseAlgorithm) -> None:
-            """Print the model's safety summary (SPEC §5) and write it to ``safety_summary.json`` in the run folder."""
-            metrics = getattr(model, "safety_metrics", None)
-            print(f"========== Safety summary: {self.algo} on {self.env_name.gym_id} ==========")
-            if metrics is None:
-                print(f"{type(model).__name__} keeps no safety metrics (see the episode_cost columns of monitor.csv)")
-                return
-            self.safety_summary = summary = metrics.summary()
-            print(metrics.format_summary())
-            for callback in self.callbacks:
-                if isinstance(callback, CostEvalCallback) and callback.evaluations_timesteps:
-                    print(
-                        f"last evaluation: mean return={callback.last_mean_reward:.2f}  "
-                        f"mean cost={callback.last_mean_cost:.2f}  mean violations={callback.last_mean_violations:.2f}"
-                    )
-                    summary = {**summary, "eval_mean_reward": callback.last_mean_reward}
-                    summary["eval_mean_cost"] = callback.last_mean_cost
-            Path(self.save_path).mkdir(parents=True, exist_ok=True)
-            with open(os.path.join(self.save_path, "safety_summary.json"), "w") as file:
-                json.dump({"num_timesteps": int(model.num_timesteps), **summary}, file, indent=2)
-
-    return SafeExperimentManager
+    def report_safety(self, model: BaseAlgorithm) -> None:
+        """Print the model's safety summary (SPEC §5) and write it to ``safety_summary.json`` in the run folder."""
+        metrics = getattr(model, "safety_metrics", None)
+        print(f"========== Safety summary: {self.algo} on {self.env_name.gym_id} ==========")
+        if metrics is None:
+            print(f"{type(model).__name__} keeps no safety metrics (see the episode_cost columns of monitor.csv)")
+            return
+        self.safety_summary = summary = metrics.summary()
+        print(metrics.format_summary())
+        for callback in self.callbacks:
+            if isinstance(callback, CostEvalCallback) and callback.evaluations_timesteps:
+                print(
+                    f"last evaluation: mean return={callback.last_mean_reward:.2f}  "
+                    f"mean cost={callback.last_mean_cost:.2f}  mean violations={callback.last_mean_violations:.2f}"
+                )
+                summary = {**summary, "eval_mean_reward": callback.last_mean_reward}
+                summary["eval_mean_cost"] = callback.last_mean_cost
+        Path(self.save_path).mkdir(parents=True, exist_ok=True)
+        with open(os.path.join(self.save_path, "safety_summary.json"), "w") as file:
+            json.dump({"num_timesteps": int(model.num_timesteps), **summary}, file, indent=2)
 
 
-_CLASSES: dict[str, type] = {}
-
-
-def safe_experiment_manager_class() -> type:
-    """The :class:`SafeExperimentManager` class (a subclass of rl-zoo3's ``ExperimentManager``, built once)."""
-    if "manager" not in _CLASSES:
-        _CLASSES["manager"] = _experiment_manager_class()
-    return _CLASSES["manager"]
-
-
-def safe_trial_eval_callback_class() -> type:
-    """The ``SafeTrialEvalCallback`` class (a subclass of rl-zoo3's ``TrialEvalCallback``, built once)."""
-    if "trial_callback" not in _CLASSES:
-        _CLASSES["trial_callback"] = _trial_eval_callback_class()
-    return _CLASSES["trial_callback"]
-
-
-def install(violation_budget: float | None = None, violation_penalty: float | None = None) -> type:
+def install(violation_budget: float | None = None, violation_penalty: float | None = None) -> type[SafeExperimentManager]:
     """Register the algorithms and make rl-zoo3's train command cost-aware (idempotent).
 
     Replaces, in rl-zoo3's ``exp_manager`` module, ``make_vec_env`` by
@@ -388,15 +369,13 @@ def install(violation_budget: float | None = None, violation_penalty: float | No
     :param violation_penalty: see the module docstring (``None``: the ``SPPO_VIOLATION_PENALTY`` variable).
     :return: the experiment manager class now used by ``rl_zoo3.train``.
     """
-    import rl_zoo3.exp_manager as exp_manager
     import rl_zoo3.train as zoo_train
 
     register_algos()
-    exp_manager.make_vec_env = cost_monitored_make_vec_env  # type: ignore[assignment]
-    exp_manager.EvalCallback = CostEvalCallback  # type: ignore[misc]
-    exp_manager.TrialEvalCallback = safe_trial_eval_callback_class()  # type: ignore[misc]
-    manager = safe_experiment_manager_class()
-    manager.violation_budget = violation_budget
-    manager.violation_penalty = violation_penalty
-    zoo_train.ExperimentManager = manager  # type: ignore[misc]
-    return manager
+    zoo_exp_manager.make_vec_env = cost_monitored_make_vec_env  # type: ignore[assignment]
+    zoo_exp_manager.EvalCallback = CostEvalCallback  # type: ignore[misc]
+    zoo_exp_manager.TrialEvalCallback = SafeTrialEvalCallback  # type: ignore[misc]
+    SafeExperimentManager.violation_budget = violation_budget
+    SafeExperimentManager.violation_penalty = violation_penalty
+    zoo_train.ExperimentManager = SafeExperimentManager  # type: ignore[misc]
+    return SafeExperimentManager

@@ -210,12 +210,18 @@ def test_optimize_with_sqlite_storage(tmp_path: Path) -> None:
         assert trial.value == pytest.approx(expected)
         assert "n_steps_pow" in trial.params
 
+    # --trial-id: the trial's values, with the *_kwargs fields it did not search kept from the yml
+    manager = zoo.install()(argparse.Namespace(), "pdo", ENV, str(tmp_path), config=str(HYPERPARAMS / "pdo.yml"), verbose=0)
+    params = manager.load_trial(storage, "pdo_point", trial_id=1)
+    assert params["n_steps"] == 2 ** study.trials[1].params["n_steps_pow"]
+    assert params["policy_kwargs"]["cost_net_arch"] == [64, 64] and "activation_fn" in params["policy_kwargs"]
+
 
 def test_violation_budget_prunes(tmp_path: Path) -> None:
     from sppo_sb3.pdo import PDO
 
     zoo.install()
-    callback_cls = zoo.safe_trial_eval_callback_class()
+    callback_cls = zoo.SafeTrialEvalCallback
     study = optuna.create_study()
     trial = study.ask()
     trial.set_user_attr("violation_budget", 2.0)
@@ -228,6 +234,16 @@ def test_violation_budget_prunes(tmp_path: Path) -> None:
     model.safety_metrics.violations = 3
     assert not callback.on_step() and callback.is_pruned
     assert trial.user_attrs["budget_exceeded_at"] == 0
+
+
+def test_record_video(tmp_path: Path) -> None:
+    pytest.importorskip("moviepy")
+    from sppo_sb3 import record_video, train
+
+    train.main(train_args("pdo", tmp_path, 64))
+    videos = tmp_path / "videos"
+    record_video.main(["--algo", "pdo", "--env", ENV, "-f", str(tmp_path), "-n", "20", "-o", str(videos), "--no-render"])
+    assert list(videos.glob("*.mp4"))
 
 
 def test_episode_cost_info_and_eval_callback(tmp_path: Path) -> None:

@@ -72,18 +72,22 @@ def with_episode_cost(env_id: str | Callable[..., gym.Env]) -> Callable[..., gym
     return make
 
 
-def cost_monitored_make_vec_env(env_id: str | Callable[..., gym.Env], *args: Any, **kwargs: Any) -> VecEnv:
+def cost_monitored_make_vec_env(
+    env_id: str | Callable[..., gym.Env], n_envs: int = 1, *, monitor_kwargs: dict[str, Any] | None = None, **kwargs: Any
+) -> VecEnv:
     """SB3's ``make_vec_env`` whose ``Monitor`` also writes ``episode_cost`` and ``episode_violations``.
 
     Same arguments as :func:`stable_baselines3.common.env_util.make_vec_env`; ``monitor_kwargs["info_keywords"]``
     is extended with :data:`COST_INFO_KEYWORDS` (keywords already there are kept).
 
     :param env_id: a registered id or a callable returning an env.
+    :param n_envs: number of envs.
+    :param monitor_kwargs: keyword arguments of ``Monitor``.
     """
-    monitor_kwargs = dict(kwargs.pop("monitor_kwargs", None) or {})
+    monitor_kwargs = dict(monitor_kwargs or {})
     keywords = tuple(monitor_kwargs.get("info_keywords", ()))
     monitor_kwargs["info_keywords"] = keywords + tuple(k for k in COST_INFO_KEYWORDS if k not in keywords)
-    return make_vec_env(with_episode_cost(env_id), *args, monitor_kwargs=monitor_kwargs, **kwargs)
+    return make_vec_env(with_episode_cost(env_id), n_envs, monitor_kwargs=monitor_kwargs, **kwargs)
 
 
 class CostEvalCallback(EvalCallback):
