@@ -397,6 +397,7 @@ class SafeOnPolicyMixin:
 
     def _on_env_reset(self) -> None:
         """Called when ``learn`` resets the envs: running episodes start over."""
+        self.safety_metrics.restart_episodes()
         self.cost_tracker.reset_running()
 
     def _learning_transition(

@@ -27,26 +27,29 @@ class SafetyMetrics:
     """
 
     def __init__(self, n_envs: int, window: int = 100) -> None:
-        self.n_envs = n_envs
         self.episodes = 0
         self.unsafe_episodes = 0
         self.violations = 0
         self.interventions = 0
         self.steps = 0
-        self._ep_return = np.zeros(n_envs)
-        self._ep_cost = np.zeros(n_envs)
-        self._ep_violations = np.zeros(n_envs, dtype=np.int64)
-        self._ep_interventions = np.zeros(n_envs, dtype=np.int64)
         self.recent: deque[dict[str, float]] = deque(maxlen=window)
+        self.restart_episodes(n_envs)
+
+    def restart_episodes(self, n_envs: int | None = None) -> None:
+        """Drop the running episodes' partial sums (the envs were reset), optionally for a new number of envs.
+
+        Cumulative counts and the finished episodes are kept.
+        """
+        self.n_envs = n_envs or self.n_envs
+        self._ep_return = np.zeros(self.n_envs)
+        self._ep_cost = np.zeros(self.n_envs)
+        self._ep_violations = np.zeros(self.n_envs, dtype=np.int64)
+        self._ep_interventions = np.zeros(self.n_envs, dtype=np.int64)
 
     def resize(self, n_envs: int) -> None:
-        """Restart the per-episode accumulators for a new number of envs (cumulative counts are kept)."""
+        """Match a new number of envs (their running episodes start over; cumulative counts are kept)."""
         if n_envs != self.n_envs:
-            cumulative = (self.episodes, self.unsafe_episodes, self.violations, self.interventions, self.steps)
-            recent = self.recent
-            self.__init__(n_envs, recent.maxlen or 100)  # type: ignore[misc]
-            self.episodes, self.unsafe_episodes, self.violations, self.interventions, self.steps = cumulative
-            self.recent = recent
+            self.restart_episodes(n_envs)
 
     def update(self, rewards: np.ndarray, costs: np.ndarray, dones: np.ndarray, intervened: np.ndarray | None = None) -> None:
         """Feed one VecEnv step.

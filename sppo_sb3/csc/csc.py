@@ -220,6 +220,8 @@ class CSC(PPO):
         progress_bar: bool = False,
     ) -> tuple[int, BaseCallback]:
         self.safety_metrics.resize(self.n_envs)
+        if reset_num_timesteps or self._last_obs is None:  # SB3 resets the envs: running episodes start over
+            self.safety_metrics.restart_episodes()
         if self.cost_buffer.n_envs != self.n_envs:
             self._make_cost_buffer()  # a new env with another number of envs: the old transitions cannot be kept
         return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)

@@ -198,6 +198,10 @@ class SPPO(OffPolicyAlgorithm):
         self._setup_replay_buffer()
         if self.shield_rule is not None and self.env is not None:
             self.shield_rule.check_action_space(self.action_space, self.env.observation_space.sample()[None])
+        assert self.safety_metrics is not None
+        if reset_num_timesteps or self._last_obs is None:  # SB3 resets the envs: running episodes start over
+            self.safety_metrics.restart_episodes()
+            self.planner.reset()
         return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
 
     # ------------------------------------------------------------------ exploration phase (Alg. 1 lines 3–9)
