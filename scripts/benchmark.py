@@ -254,7 +254,32 @@ def read_monitor_curve(zoo_dir: Path) -> pd.DataFrame:
     return curve
 
 
-def summarize(spec: RunSpec, curve: pd.DataFrame, safety: dict[str, Any] | None, wall_s: float, cmd: Sequence[str]) -> dict:
+def model_timesteps(zoo_dir: Path) -> int | None:
+    """``num_timesteps`` of the final model that rl-zoo3 saved (``<env>.zip``; SB3 stores it in the zip's ``data``).
+
+    :param zoo_dir: rl-zoo3's log folder of the run.
+    """
+    import zipfile
+
+    for path in sorted(zoo_dir.glob("*/*/*.zip")):  # <algo>/<env>_<id>/<env>.zip, not best_model.zip or checkpoints
+        if path.stem == "best_model" or "_steps" in path.stem:
+            continue
+        try:
+            with zipfile.ZipFile(path) as archive:
+                return int(json.loads(archive.read("data"))["num_timesteps"])
+        except (KeyError, ValueError, OSError, zipfile.BadZipFile):
+            return None
+    return None
+
+
+def summarize(
+    spec: RunSpec,
+    curve: pd.DataFrame,
+    safety: dict[str, Any] | None,
+    wall_s: float,
+    cmd: Sequence[str],
+    timesteps: int | None = None,
+) -> dict:
     """The ``summary.json`` of a run.
 
     Cumulative violations, safety rate, episodes and interventions come from the model's own safety summary
@@ -265,11 +290,15 @@ def summarize(spec: RunSpec, curve: pd.DataFrame, safety: dict[str, Any] | None,
     :param safety: the model's safety summary, or ``None``.
     :param wall_s: wall-clock seconds of the train command.
     :param cmd: the train command.
+    :param timesteps: env steps of the run (the saved model's ``num_timesteps``); ``None``: the safety summary's, else
+        the finished episodes' total length.
     """
     last = curve.tail(spec.last_n)
     episodes = len(curve)
     unsafe = int((curve["violations"] > 0).sum())
-    steps = int(safety["num_timesteps"]) if safety and "num_timesteps" in safety else int(curve["length"].sum())
+    if timesteps is None:
+        timesteps = int(safety["num_timesteps"]) if safety and "num_timesteps" in safety else int(curve["length"].sum())
+    steps = timesteps
     summary: dict[str, Any] = {
         "task": spec.task,
         "algo": spec.algo,
@@ -338,7 +367,7 @@ def execute(spec_dict: dict[str, Any], work_dir: str | None = None) -> dict[str,
             curve = read_monitor_curve(zoo_dir)
             safety_files = sorted(zoo_dir.rglob("safety_summary.json"))
             safety = json.loads(safety_files[-1].read_text()) if safety_files else None
-            result["summary"] = summarize(spec, curve, safety, wall_s, cmd)
+            result["summary"] = summarize(spec, curve, safety, wall_s, cmd, model_timesteps(zoo_dir))
             result["curve_csv"] = curve.to_csv(index=False)
         return result
     finally:
