@@ -346,6 +346,7 @@ def execute(spec_dict: dict[str, Any], work_dir: str | None = None) -> dict[str,
     try:
         root.mkdir(parents=True, exist_ok=True)
         zoo_dir = root / "zoo"
+        (root / DONE_FILE).unlink(missing_ok=True)  # --force: the run is unfinished until it finishes again
         shutil.rmtree(zoo_dir, ignore_errors=True)  # an interrupted earlier attempt restarts from scratch
         config_path = None
         if spec.config_text is not None:
