@@ -132,8 +132,9 @@ def order_of_magnitude(violations: float) -> str:
 def curve_band(curves: Sequence[pd.DataFrame], column: str, points: int = 100, smooth: int = 1) -> pd.DataFrame:
     """Mean and std over seeds of ``column`` vs env steps, on a common grid of ``points`` steps.
 
-    Each seed's column (a rolling mean over ``smooth`` episodes) is interpolated linearly between its episode ends;
-    outside a seed's range it is left out, so the band is the mean of the seeds that reached each step.
+    Each seed's column (a rolling mean over ``smooth`` episodes) is interpolated linearly between its episode ends,
+    on the range of env steps that all seeds cover (their episodes end at different steps); when the seeds' ranges do
+    not overlap, on their union, where a seed outside its range is left out of the mean.
 
     :param curves: the seeds' ``curve.csv`` frames (``timesteps`` and ``column``).
     :param column: e.g. ``return`` or ``cumulative_violations``.
@@ -144,8 +145,12 @@ def curve_band(curves: Sequence[pd.DataFrame], column: str, points: int = 100, s
     usable = [c for c in curves if not c.empty and column in c]
     if not usable:
         return pd.DataFrame(columns=["timesteps", "mean", "std", "n"])
-    start = min(float(c["timesteps"].iloc[0]) for c in usable)
-    stop = max(float(c["timesteps"].iloc[-1]) for c in usable)
+    # the env steps that every seed covers (episodes end at different steps), else (no overlap) all of them
+    start = max(float(c["timesteps"].iloc[0]) for c in usable)
+    stop = min(float(c["timesteps"].iloc[-1]) for c in usable)
+    if stop < start:
+        start = min(float(c["timesteps"].iloc[0]) for c in usable)
+        stop = max(float(c["timesteps"].iloc[-1]) for c in usable)
     grid = np.linspace(start, stop, points) if stop > start else np.array([stop])
     values = np.full((len(usable), grid.size), np.nan)
     for i, curve in enumerate(usable):
@@ -354,7 +359,7 @@ def plot_violation_bars(summaries: pd.DataFrame, tasks: Sequence[str], path: Pat
             ax.bar(x, mean, yerr=std, color=color, alpha=0.75, capsize=4)
             ax.scatter(np.full(values.size, x) + np.linspace(-0.15, 0.15, values.size), values, color="k", s=10, zorder=3)
             ax.annotate(
-                f"{mean:.0f}", (x, mean + std), ha="center", va="bottom", fontsize=8, xytext=(0, 2), textcoords="offset points"
+                f"{mean:.3g}", (x, mean + std), ha="center", va="bottom", fontsize=8, xytext=(0, 2), textcoords="offset points"
             )
         ax.set_xticks(range(len(algos)), [ALGO_NAMES.get(a, a) for a in algos], fontsize=8)
         ax.set_ylabel("cumulative violations")
