@@ -109,11 +109,11 @@ def test_sampler_never_executes_inadmissible_when_admissible_exists():
     assert not has_admissible[:4].any() and has_admissible[4:].all()
     # executed = the first admissible sample, whose Q_C is <= threshold ...
     first = admissible.float().argmax(0)
-    assert th.equal(out.index[4:], first[4:])
+    assert th.equal(out.sample_index[4:], first[4:])
     assert (out.q_value[4:] <= threshold).all()
     # ... and the argmin where no sample is admissible
-    assert th.equal(out.index[:4], q_values[:, :4].argmin(0))
-    assert th.equal(out.actions, candidates[out.index, th.arange(n_envs)])
+    assert th.equal(out.sample_index[:4], q_values[:, :4].argmin(0))
+    assert th.equal(out.actions, candidates[out.sample_index, th.arange(n_envs)])
     assert th.equal(out.first_rejected, q_values[0] > threshold)
     assert th.equal(out.admissible, has_admissible)
 

@@ -33,7 +33,8 @@ class SafetyMetrics:
         self.interventions = 0
         self.steps = 0
         self.recent: deque[dict[str, float]] = deque(maxlen=window)
-        self.restart_episodes(n_envs)
+        self.n_envs = n_envs
+        self.restart_episodes()
 
     def restart_episodes(self, n_envs: int | None = None) -> None:
         """Drop the running episodes' partial sums (the envs were reset), optionally for a new number of envs.
@@ -69,7 +70,7 @@ class SafetyMetrics:
         self._ep_violations += violated
         self._ep_interventions += shielded
         for env_idx in np.flatnonzero(dones):
-            self._close_episode(env_idx)
+            self._close_episode(int(env_idx))
 
     def update_from_infos(self, rewards: np.ndarray, dones: np.ndarray, infos: Sequence[dict[str, Any]]) -> np.ndarray:
         """Feed one VecEnv step from its ``infos`` (``info["cost"]``, and ``info["shield_intervened"]`` if set).

@@ -353,7 +353,7 @@ class CSC(PPO):
                 next_actions = policy.normalize_actions(policy.get_distribution(data.next_observations).sample())
                 next_q = policy.cost_values(data.next_observations, next_actions, target=True)
                 target = data.rewards.flatten() + (1.0 - data.dones.flatten()) * self.cost_gamma * next_q
-                gaussian = policy.get_distribution(data.observations).distribution
+                gaussian = policy.gaussian(policy.get_distribution(data.observations))
                 pi_actions = policy.normalize_actions(gaussian.sample((self.n_cql_actions,)))
             features = policy.cost_features(data.observations)
             q_data = policy.cost_critic(features, data.actions)
@@ -393,7 +393,7 @@ class CSC(PPO):
                 obs = obs_as_tensor(observations[start : start + chunk], self.device)
                 act = th.as_tensor(actions[start : start + chunk], device=self.device)
                 q = policy.cost_values(obs, policy.normalize_actions(act))
-                samples = policy.get_distribution(obs).distribution.sample((self.n_cost_baseline_samples,))
+                samples = policy.gaussian(policy.get_distribution(obs)).sample((self.n_cost_baseline_samples,))
                 baseline = policy.cost_values(obs, policy.normalize_actions(samples)).mean(dim=0)
                 out.append((q - baseline).cpu().numpy())
         return np.concatenate(out)

@@ -6,7 +6,7 @@ Bharadhwaj et al., "Conservative Safety Critics for Exploration", ICLR 2021 (the
 from __future__ import annotations
 
 import copy
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
 import torch as th
@@ -25,14 +25,14 @@ class RejectionSample(NamedTuple):
     """Result of :func:`rejection_sample_actions`.
 
     :param actions: ``(n_envs, action_dim)`` the executed candidates.
-    :param index: ``(n_envs,)`` which candidate was executed.
+    :param sample_index: ``(n_envs,)`` which candidate was executed.
     :param first_rejected: ``(n_envs,)`` whether the first candidate had ``Q_C > threshold`` (an "intervention").
     :param admissible: ``(n_envs,)`` whether any candidate had ``Q_C <= threshold`` (else the argmin was executed).
     :param q_value: ``(n_envs,)`` ``Q_C`` of the executed candidates.
     """
 
     actions: th.Tensor
-    index: th.Tensor
+    sample_index: th.Tensor
     first_rejected: th.Tensor
     admissible: th.Tensor
     q_value: th.Tensor
@@ -208,7 +208,7 @@ class CSCPolicy(ActorCriticPolicy):
         self.cost_critic_target = copy.deepcopy(self.cost_critic)
         self.cost_critic_target.requires_grad_(False)
         cost_params = list(self.cost_features_extractor.parameters()) + list(self.cost_critic.parameters())
-        self.cost_optimizer = self.optimizer_class(cost_params, lr=self.cost_learning_rate, **self.optimizer_kwargs)
+        self.cost_optimizer = self.optimizer_class(cost_params, lr=self.cost_learning_rate, **self.optimizer_kwargs)  # type: ignore[call-arg]
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
@@ -230,9 +230,16 @@ class CSCPolicy(ActorCriticPolicy):
         super().set_training_mode(mode)
         self.cost_critic_target.train(False)
 
+    @staticmethod
+    def gaussian(distribution: Any) -> th.distributions.Normal:
+        """The diagonal Gaussian ``π(·|s)`` behind SB3's action distribution."""
+        gaussian = distribution.distribution
+        assert isinstance(gaussian, th.distributions.Normal), "CSC needs a Gaussian policy on a Box action space"
+        return gaussian
+
     def normalize_actions(self, actions: th.Tensor) -> th.Tensor:
         """Clip raw policy actions to the Box and rescale them to [-1, 1], the cost critic's action input."""
-        low, high = self.action_low, self.action_high
+        low, high = cast(th.Tensor, self.action_low), cast(th.Tensor, self.action_high)
         return 2.0 * (th.clamp(actions, low, high) - low) / (high - low) - 1.0
 
     def cost_features(self, obs: PyTorchObs) -> th.Tensor:
@@ -268,7 +275,7 @@ class CSCPolicy(ActorCriticPolicy):
         :return: the sample (raw, unclipped actions) and the action distribution ``π(·|s)``.
         """
         distribution = self.get_distribution(obs)
-        gaussian = distribution.distribution
+        gaussian = self.gaussian(distribution)
         n_samples = self.n_action_samples if n_samples is None else n_samples
         candidates = self.draw_candidates(gaussian.mean, gaussian.stddev, n_samples, deterministic)
         q_values = self.cost_values(obs, self.normalize_actions(candidates))

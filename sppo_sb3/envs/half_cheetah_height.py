@@ -80,7 +80,7 @@ class SafeHalfCheetahHeightEnv(HalfCheetahEnv):
         mujoco.mj_kinematics(self.model, self.data)
         return float(self.data.xipos[self._height_body, 2])
 
-    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:  # type: ignore[override]
         obs, reward, _, truncated, info = super().step(action)
         height = self.fthigh_height()
         unsafe = bool(height_is_unsafe(height))

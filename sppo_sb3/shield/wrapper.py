@@ -30,6 +30,7 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         if not isinstance(env.action_space, gym.spaces.Box):
             raise TypeError(f"ShieldWrapper needs a Box action space, got {env.action_space}.")
         self.rule = rule
+        self._box: gym.spaces.Box = env.action_space
         self._obs: np.ndarray | None = None
 
     def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
@@ -41,9 +42,9 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
     def step(self, action: np.ndarray) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
         if self._obs is None:
             raise RuntimeError("ShieldWrapper.step called before reset().")
-        proposed = np.clip(np.asarray(action, dtype=np.float64), self.action_space.low, self.action_space.high)
+        proposed = np.clip(np.asarray(action, dtype=np.float64), self._box.low, self._box.high)
         decision = self.rule.shield(self._obs[None], proposed[None])
-        safe = decision.actions[0].astype(self.action_space.dtype)
+        safe = decision.actions[0].astype(self._box.dtype)
         obs, reward, terminated, truncated, info = self.env.step(safe)
         info[INTERVENED_KEY] = bool(decision.intervened[0])
         info[PROPOSED_ACTION_KEY] = proposed

@@ -85,7 +85,8 @@ def low_precision_copy(model: TOLD, dtype: th.dtype) -> TOLD:
     shadow = copy.deepcopy(model).to(dtype)
     for name in ("reward", "q1", "q2"):
         head: nn.Sequential = getattr(shadow, name)
-        setattr(shadow, name, nn.Sequential(*head[:-1], _Cast(th.float32), head[-1].float()))
+        layers = list(head)
+        setattr(shadow, name, nn.Sequential(*layers[:-1], _Cast(th.float32), layers[-1].float()))
     return shadow
 
 

@@ -143,8 +143,9 @@ class TOLDPolicy(BasePolicy):
         self.model_target = copy.deepcopy(self.model)
         self.model_target.requires_grad_(False)
         model_params = [p for name, p in self.model.named_parameters() if not name.startswith("pi.")]
-        self.optimizer = optimizer_class(model_params, lr=lr_schedule(1), **self.optimizer_kwargs)
-        self.pi_optimizer = optimizer_class(self.model.pi.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+        lr = lr_schedule(1)
+        self.optimizer = optimizer_class(model_params, lr=lr, **self.optimizer_kwargs)  # type: ignore[call-arg]
+        self.pi_optimizer = optimizer_class(self.model.pi.parameters(), lr=lr, **self.optimizer_kwargs)  # type: ignore[call-arg]
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()

@@ -17,7 +17,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, RolloutReturn, Schedule, TrainFreq
-from stable_baselines3.common.utils import obs_as_tensor, polyak_update, should_collect_more_steps
+from stable_baselines3.common.utils import polyak_update, should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv
 
 from sppo_sb3.common.costs import costs_from_infos
@@ -81,6 +81,8 @@ class SPPO(OffPolicyAlgorithm):
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"TOLDPolicy": TOLDPolicy, "MlpPolicy": TOLDPolicy}
     policy: TOLDPolicy
     replay_buffer: ShieldedReplayBuffer
+    observation_space: spaces.Box  # checked by check_spaces
+    action_space: spaces.Box
 
     def __init__(
         self,
@@ -158,8 +160,9 @@ class SPPO(OffPolicyAlgorithm):
         check_spaces(self.observation_space, self.action_space)
         self._setup_lr_schedule()
         self.set_random_seed(self.seed)
-        self.policy = self.policy_class(self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs)
-        self.policy = self.policy.to(self.device)
+        policy = self.policy_class(self.observation_space, self.action_space, self.lr_schedule, **self.policy_kwargs)
+        assert isinstance(policy, TOLDPolicy), "SPPO needs a TOLDPolicy"
+        self.policy = policy.to(self.device)
         self._convert_train_freq()
         if self.shield_rule is None:
             self.shield_rule = self._resolve_shield()
@@ -209,7 +212,7 @@ class SPPO(OffPolicyAlgorithm):
         """The unshielded planner's actions in [-1, 1]: uniform during warm-up, MPPI afterwards (Alg. 2)."""
         if self.num_timesteps < learning_starts:
             return np.random.uniform(-1.0, 1.0, size=(len(obs), *self.action_space.shape)).astype(np.float32)
-        obs_tensor = obs_as_tensor(obs, self.device).float()
+        obs_tensor = th.as_tensor(obs, dtype=th.float32, device=self.device)
         return self.planner.plan(self.policy.model, obs_tensor, self.num_timesteps, deterministic=False).cpu().numpy()
 
     def _shield(self, raw_obs: np.ndarray, env_actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -241,6 +244,7 @@ class SPPO(OffPolicyAlgorithm):
             actions, intervened = self._shield(raw_obs, proposed_env)  # type: ignore[arg-type]
 
             new_obs, rewards, dones, infos = env.step(actions)
+            assert isinstance(new_obs, np.ndarray)  # flat Box observations (check_spaces)
             check_finite(new_obs, rewards)
             for info, shielded, wanted in zip(infos, intervened, proposed_env):
                 info[INTERVENED_KEY], info[PROPOSED_ACTION_KEY] = bool(shielded), wanted
@@ -313,7 +317,8 @@ class SPPO(OffPolicyAlgorithm):
         if episode_start is not None:
             self.planner.reset(th.as_tensor(np.asarray(episode_start, dtype=bool).reshape(-1)))
         raw_obs = self._vec_normalize_env.unnormalize_obs(obs) if self._vec_normalize_env is not None else obs
-        obs_tensor = obs_as_tensor(obs, self.device).float()
+        assert isinstance(raw_obs, np.ndarray)
+        obs_tensor = th.as_tensor(obs, dtype=th.float32, device=self.device)
         if self.plan_at_predict:
             scaled = self.planner.plan(self.policy.model, obs_tensor, self.num_timesteps, deterministic=deterministic)
         else:
