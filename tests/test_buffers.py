@@ -24,7 +24,7 @@ def fill(buffer: ShieldedReplayBuffer, episodes: list[list[bool]]) -> None:
 
 
 def test_absorbing_relabel_terminates_at_first_intervention():
-    buffer = ShieldedReplayBuffer(100, OBS, ACT, device="cpu", penalty=-1.0)
+    buffer = ShieldedReplayBuffer(100, OBS, ACT, device="cpu", penalty=-1.0, absorbing="terminate")
     fill(buffer, [[False, False, True, False, True, False], [False, False]])
     # B holds every real step
     assert buffer.size() == 8
@@ -61,7 +61,7 @@ def test_restart_mode_keeps_learning_after_an_intervention():
 
 def test_sequences_never_cross_episode_ends_or_the_write_head():
     rng = np.random.default_rng(0)
-    buffer = ShieldedReplayBuffer(50, OBS, ACT, device="cpu")
+    buffer = ShieldedReplayBuffer(50, OBS, ACT, device="cpu", absorbing="terminate")
     lengths = rng.integers(1, 7, size=30)
     fill(buffer, [[False] * int(n) for n in lengths])  # wraps the 50-step buffer several times
     episode_of = np.repeat(np.arange(len(lengths)), lengths)

@@ -53,8 +53,9 @@ def test_every_executed_action_is_shielded_and_safe():
     assert unshielded.safety_metrics.safety_rate < 100.0
 
 
-def test_b_tilde_holds_the_absorbing_relabel_of_real_interventions():
-    model = tiny_sppo(learning_starts=400).learn(400)
+@pytest.mark.parametrize("absorbing", ["terminate", "restart"])
+def test_b_tilde_holds_the_absorbing_relabel_of_real_interventions(absorbing):
+    model = tiny_sppo(learning_starts=400, absorbing=absorbing).learn(400)
     buffer = model.replay_buffer
     n = buffer.pos
     assert buffer.intervened[:n].any()
@@ -62,11 +63,13 @@ def test_b_tilde_holds_the_absorbing_relabel_of_real_interventions():
         executed = model.policy.unscale_action(buffer.actions[t, 0])
         backup = model.shield_rule.backup_action(buffer.observations[t, 0][None].astype(np.float64))[0]
         np.testing.assert_allclose(executed, backup, atol=1e-5)  # B holds the safe action
-    # in the paper's absorbing MDP, nothing of an episode follows its first intervention
     first = np.flatnonzero(buffer.intervened[:n, 0])[0]
     episode_end = first + np.flatnonzero(buffer.dones[first:n, 0])[:1]
     stop = int(episode_end[0]) + 1 if len(episode_end) else n
-    assert not buffer.relabel_valid[first + 1 : stop, 0].any()
+    if absorbing == "terminate":  # the paper's M̃: nothing of an episode follows its first intervention
+        assert not buffer.relabel_valid[first + 1 : stop, 0].any()
+    else:  # B̃ restarts at the next real state
+        assert buffer.relabel_valid[:n, 0].all()
 
 
 def test_n_envs_two_plans_all_envs_in_one_batch():

@@ -66,7 +66,7 @@ class ShieldedReplayBuffer(ReplayBuffer):
         n_envs: int = 1,
         optimize_memory_usage: bool = False,
         handle_timeout_termination: bool = True,
-        absorbing: AbsorbingMode = "terminate",
+        absorbing: AbsorbingMode = "restart",
         penalty: float = -1.0,
     ) -> None:
         if optimize_memory_usage:
