@@ -23,7 +23,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 
 from sppo_sb3.common.on_policy import CostRolloutBuffer, SafeOnPolicyMixin
 from sppo_sb3.common.safety import INTERVENED_KEY
-from sppo_sb3.shield import ShieldingRule, ShieldWrapper, default_shielding_rule
+from sppo_sb3.shield import ShieldingRule, ShieldWrapper, resolve_shielding_rule
 
 SelfSAILR = TypeVar("SelfSAILR", bound="SAILR")
 
@@ -175,29 +175,12 @@ class SAILR(SafeOnPolicyMixin, PPO):
 
     # --- shielding of the training envs -------------------------------------------------------------------------
 
-    def _resolve_rule(self, env: VecEnv) -> ShieldingRule | None:
-        if self.shield_rule is not None:
-            return self.shield_rule
-        if not isinstance(self.shield, str):
-            return None
-        env_id: str | None = self.shield
-        if env_id == "auto":
-            spec = env.get_attr("spec", indices=[0])[0]
-            env_id = spec.id if spec is not None else None
-        rule = default_shielding_rule(env_id)
-        if rule is None:
-            raise ValueError(
-                f"No shielding rule is registered for env id {env_id!r}: pass shield=YourRule() (a "
-                "sppo_sb3.shield.ShieldingRule), register one with sppo_sb3.shield.register_shielding_rule, or pass "
-                "shield=None with envs already wrapped in ShieldWrapper."
-            )
-        return rule
-
     def _shield_env(self) -> None:
         """Shield ``self.env`` with the rule (resolved on first use, then saved with the model)."""
         if self.env is None:
             return
-        self.shield_rule = self._resolve_rule(self.env)
+        if self.shield_rule is None:
+            self.shield_rule = resolve_shielding_rule(self.shield, self.env, required=True)
         if self.shield_rule is not None:
             shield_vec_env(self.env, self.shield_rule)
         elif all(self.env.env_is_wrapped(ShieldWrapper)):

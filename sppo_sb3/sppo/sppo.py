@@ -22,7 +22,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sppo_sb3.common.costs import costs_from_infos
 from sppo_sb3.common.safety import INTERVENED_KEY, SafetyMetrics
-from sppo_sb3.shield import ShieldingRule, default_shielding_rule
+from sppo_sb3.shield import ShieldingRule, resolve_shielding_rule
 from sppo_sb3.shield.wrapper import PROPOSED_ACTION_KEY
 from sppo_sb3.sppo.buffers import AbsorbingMode, ShieldedReplayBuffer
 from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
@@ -170,7 +170,7 @@ class SPPO(OffPolicyAlgorithm):
         self.policy = policy.to(self.device)
         self._convert_train_freq()
         if self.shield_rule is None:
-            self.shield_rule = self._resolve_shield()
+            self.shield_rule = resolve_shielding_rule(self.shield, self.env, required=False)
         self.planner = MPPIPlanner(self.planner_config, self.n_envs, self.action_space.shape[0], self.device)
         warm_start = getattr(self, "planner_warm_start", None)
         if warm_start is not None and warm_start.shape == tuple(self.planner.prev_mean.shape):
@@ -178,16 +178,6 @@ class SPPO(OffPolicyAlgorithm):
         if self.safety_metrics is None:
             self.safety_metrics = SafetyMetrics(self.n_envs, window=self._stats_window_size)
         self.safety_metrics.resize(self.n_envs)
-
-    def _resolve_shield(self) -> ShieldingRule | None:
-        if isinstance(self.shield, ShieldingRule) or self.shield is None:
-            return self.shield
-        if self.shield != "auto":
-            raise ValueError(f"shield must be a ShieldingRule, 'auto' or None, got {self.shield!r}.")
-        if self.env is None:
-            return None
-        spec = self.env.get_attr("spec", [0])[0]
-        return default_shielding_rule(spec.id if spec is not None else None)
 
     def _setup_replay_buffer(self) -> None:
         """Allocate ``B``/``B̃`` on the first ``learn``, so that loading a model to deploy it allocates nothing."""
