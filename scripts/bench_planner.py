@@ -7,7 +7,8 @@ Runs, in one process and on the same model weights:
   ``N + N_π`` trajectories with plain ``nn.Module`` calls;
 - ``sppo``: the package's batched planner (:class:`sppo_sb3.sppo.planner.MPPIPlanner`), fp32 and bf16.
 
-Sizes: TD-MPC (N=512+24 policy samples, k=64, J=6, H=5, hidden 512, latent 50) and the package's default.
+Sizes: TD-MPC, the class default (N=512+25 policy samples, k=64, J=6, H=5, hidden 512, latent 50), and the small
+configuration of ``hyperparams/sppo.yml`` for low-dimensional tasks.
 
     python scripts/bench_planner.py                    # CPU (and CUDA when present), n_envs 1, 8, 64
     python scripts/bench_planner.py --quick            # a short run: n_envs 1 and 8, fewer repeats
@@ -30,8 +31,15 @@ from sppo_sb3.sppo.policies import TOLD
 
 OBS_DIM, ACTION_DIM = 17, 6  # Half-Cheetah sizes
 SIZES = {
+    # the class defaults (TD-MPC): N=512 (+25 policy samples), k=64, J=6, H=5, hidden 512, latent 50
     "td-mpc": dict(latent_dim=50, encoder_dim=256, hidden_dim=512, config=MPPIConfig()),
-    "default": dict(latent_dim=50, encoder_dim=256, hidden_dim=512, config=MPPIConfig()),
+    # hyperparams/sppo.yml's low-dimensional tasks (Point Robot, Pendulum)
+    "small": dict(
+        latent_dim=32,
+        encoder_dim=64,
+        hidden_dim=128,
+        config=MPPIConfig(num_samples=64, num_elites=8, iterations=3, horizon=3, policy_fraction=0.1),
+    ),
 }
 
 

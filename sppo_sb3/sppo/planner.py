@@ -7,6 +7,7 @@ carries all envs at once; the only Python loops run over the ``H`` model steps a
 from __future__ import annotations
 
 import copy
+import math
 from dataclasses import dataclass
 
 import torch as th
@@ -39,6 +40,9 @@ class MPPIConfig:
     :param max_std: upper clamp of ``σ`` (and its initial value).
     :param policy_std: std of the clipped noise on ``π``'s actions inside the planner.
     :param gamma: discount of eq. 10.
+    :param max_rows: trajectories scored per network call: the ``E·N`` samples of many envs are cut into equal
+        blocks of at most this many rows, so each block's activations stay in cache (64 envs × 512 samples of 512-wide
+        activations are 64 MB; on a 2-core CPU the unblocked batch ran 1.6× slower per action).
     :param dtype: ``"float32"`` or ``"bfloat16"``: precision of the planner's hidden layers. bf16 runs on AMX
         (recent Xeon CPUs) and tensor cores several times faster; reward and value heads stay fp32, so returns and
         elite weights keep fp32 precision.
@@ -58,6 +62,7 @@ class MPPIConfig:
     max_std: float = 2.0
     policy_std: float = 0.05
     gamma: float = 0.99
+    max_rows: int = 2048
     dtype: str = "float32"
 
     def horizon_at(self, step: int) -> int:
@@ -200,13 +205,17 @@ class MPPIPlanner:
         pi_actions = pi_actions.view(horizon, n_envs, p, adim).permute(1, 2, 0, 3)
         pi_returns = pi_returns.view(n_envs, p)
         z_samples = z.repeat_interleave(n, 0)
+        block_rows = math.ceil(len(z_samples) / math.ceil(len(z_samples) / cfg.max_rows))  # equal blocks, no small tail
         mean = self.warm_start(horizon)
         std = th.full_like(mean, cfg.max_std)
         for _ in range(cfg.iterations):
             noise = th.randn(n_envs, n, horizon, adim, device=z.device)
             samples = (mean.unsqueeze(1) + std.unsqueeze(1) * noise).clamp(-1.0, 1.0)
             flat = samples.permute(2, 0, 1, 3).reshape(horizon, n_envs * n, adim).to(self.dtype)
-            returns = trajectory_return(model, z_samples, flat, cfg.gamma, cfg.policy_std).view(n_envs, n)
+            blocks = zip(z_samples.split(block_rows), flat.split(block_rows, dim=1))
+            returns = th.cat([trajectory_return(model, zb, ab, cfg.gamma, cfg.policy_std) for zb, ab in blocks]).view(
+                n_envs, n
+            )
             all_actions, all_returns = th.cat([samples, pi_actions.float()], 1), th.cat([returns, pi_returns], 1)
             elite_returns, elite_idx = all_returns.topk(cfg.num_elites, dim=1)
             elites = all_actions.gather(1, elite_idx[:, :, None, None].expand(-1, -1, horizon, adim))
