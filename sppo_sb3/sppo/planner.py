@@ -110,6 +110,12 @@ def trajectory_return(model: TOLD, z: th.Tensor, actions: th.Tensor, gamma: floa
     return value + gamma ** actions.shape[0] * terminal
 
 
+def blocked_returns(model: TOLD, z: th.Tensor, actions: th.Tensor, cfg: MPPIConfig, block_rows: int) -> th.Tensor:
+    """Eq. 10 for ``(B, latent)`` starts and ``(H, B, A)`` actions, in row blocks whose activations stay in cache."""
+    blocks = zip(z.split(block_rows), actions.split(block_rows, dim=1))
+    return th.cat([trajectory_return(model, zb, ab, cfg.gamma, cfg.policy_std) for zb, ab in blocks])
+
+
 def policy_rollout(model: TOLD, z: th.Tensor, horizon: int, gamma: float, policy_std: float) -> tuple[th.Tensor, th.Tensor]:
     """Roll ``π`` through ``d`` (Alg. 2 line 5) and score it by eq. 10 in the same pass.
 
@@ -202,7 +208,7 @@ class MPPIPlanner:
         model = self._planning_model(model)
         z = model.encode(obs.to(self.dtype))
         pi_actions, pi_returns = policy_rollout(model, z.repeat_interleave(p, 0), horizon, cfg.gamma, cfg.policy_std)
-        pi_actions = pi_actions.view(horizon, n_envs, p, adim).permute(1, 2, 0, 3)
+        pi_actions = pi_actions.view(horizon, n_envs, p, adim).permute(1, 2, 0, 3).float()
         pi_returns = pi_returns.view(n_envs, p)
         z_samples = z.repeat_interleave(n, 0)
         block_rows = math.ceil(len(z_samples) / math.ceil(len(z_samples) / cfg.max_rows))  # equal blocks, no small tail
@@ -212,11 +218,8 @@ class MPPIPlanner:
             noise = th.randn(n_envs, n, horizon, adim, device=z.device)
             samples = (mean.unsqueeze(1) + std.unsqueeze(1) * noise).clamp(-1.0, 1.0)
             flat = samples.permute(2, 0, 1, 3).reshape(horizon, n_envs * n, adim).to(self.dtype)
-            blocks = zip(z_samples.split(block_rows), flat.split(block_rows, dim=1))
-            returns = th.cat([trajectory_return(model, zb, ab, cfg.gamma, cfg.policy_std) for zb, ab in blocks]).view(
-                n_envs, n
-            )
-            all_actions, all_returns = th.cat([samples, pi_actions.float()], 1), th.cat([returns, pi_returns], 1)
+            returns = blocked_returns(model, z_samples, flat, cfg, block_rows).view(n_envs, n)
+            all_actions, all_returns = th.cat([samples, pi_actions], 1), th.cat([returns, pi_returns], 1)
             elite_returns, elite_idx = all_returns.topk(cfg.num_elites, dim=1)
             elites = all_actions.gather(1, elite_idx[:, :, None, None].expand(-1, -1, horizon, adim))
             new_mean, new_std = refit_gaussian(elites, elite_returns, cfg.temperature)
