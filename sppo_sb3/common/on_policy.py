@@ -5,6 +5,8 @@ indicator ``c(s, a) = info["cost"]`` never reaches the learner. This module adds
 algorithm of the package:
 
 - :func:`compute_gae`: GAE(λ) (Schulman et al. 2016, eqs. 11–16) of any per-step signal — used for the cost;
+- :func:`lagrange_update` and :func:`lagrangian_advantage`: the dual and primal steps of the primal-dual methods
+  (PDO, CSC);
 - :class:`CostRolloutBuffer`: a ``RolloutBuffer`` that also stores costs, cost values, cost GAE and cost returns,
   and a per-step *learning mask* (SAILR does not learn from the steps after an intervention);
 - :class:`CostActorCriticPolicy`: SB3's actor-critic with an extra cost value head ``V_C(s)``;
@@ -76,6 +78,27 @@ def compute_gae(
         last_gae = delta + gamma * gae_lambda * next_non_terminal * last_gae
         advantages[step] = last_gae
     return advantages, advantages + values
+
+
+def lagrange_update(lagrange_multiplier: float, episode_cost: float, cost_limit: float, lagrange_lr: float) -> float:
+    """Projected dual ascent on the Lagrange multiplier: ``λ ← max(0, λ + η_λ·(J_C - d))``.
+
+    ``∂L/∂λ = -(J_C(π) - d)`` for ``L(π, λ) = J_R(π) - λ·(J_C(π) - d)``: the dual problem ``min_λ≥0 max_π L`` moves ``λ``
+    up while the measured cost exceeds the limit and down (to 0 at most) while it is below.
+
+    :param lagrange_multiplier: current ``λ >= 0``.
+    :param episode_cost: measured mean episode cost ``J_C``.
+    :param cost_limit: the limit ``d``.
+    :param lagrange_lr: dual step size ``η_λ > 0``.
+    :return: the new ``λ``.
+    """
+    return max(0.0, lagrange_multiplier + lagrange_lr * (episode_cost - cost_limit))
+
+
+def lagrangian_advantage(advantages: np.ndarray, cost_advantages: np.ndarray, lagrange_multiplier: float) -> np.ndarray:
+    """The primal step's advantage ``(A_R - λ·A_C) / (1 + λ)``; the ``1 + λ`` keeps its scale as ``λ`` grows."""
+    lam = lagrange_multiplier
+    return ((advantages - lam * cost_advantages) / (1.0 + lam)).astype(np.float32)
 
 
 class CostRolloutBufferSamples(NamedTuple):

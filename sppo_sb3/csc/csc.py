@@ -33,6 +33,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch.nn import functional as F
 
 from sppo_sb3.common.costs import costs_from_infos
+from sppo_sb3.common.on_policy import lagrange_update, lagrangian_advantage
 from sppo_sb3.common.safety import SafetyMetrics
 from sppo_sb3.csc.policies import CSCPolicy
 
@@ -381,7 +382,7 @@ class CSC(PPO):
         if new_episodes <= 0:
             return None
         episode_cost = float(np.mean([ep["cost"] for ep in list(metrics.recent)[-new_episodes:]]))
-        self.lagrange_multiplier = max(0.0, self.lagrange_multiplier + self.lagrange_lr * (episode_cost - self.cost_limit))
+        self.lagrange_multiplier = lagrange_update(self.lagrange_multiplier, episode_cost, self.cost_limit, self.lagrange_lr)
         return episode_cost
 
     def cost_advantages(self, observations: np.ndarray, actions: np.ndarray, chunk: int = 4096) -> np.ndarray:
@@ -412,7 +413,7 @@ class CSC(PPO):
         flat_actions = buffer.actions.reshape(n_steps * n_envs, -1)
         cost_adv = self.cost_advantages(flat_obs, flat_actions).reshape(n_steps, n_envs)
         lam = self.lagrange_multiplier
-        buffer.advantages = ((buffer.advantages - lam * cost_adv) / (1.0 + lam)).astype(np.float32)
+        buffer.advantages = lagrangian_advantage(buffer.advantages, cost_adv, lam)
 
         super().train()
 

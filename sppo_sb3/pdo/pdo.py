@@ -10,32 +10,22 @@ from __future__ import annotations
 
 from typing import Any, ClassVar, TypeVar
 
-import numpy as np
 import torch as th
 from stable_baselines3 import PPO
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
-from sppo_sb3.common.on_policy import CostActorCriticPolicy, CostRolloutBuffer, SafeOnPolicyMixin
+from sppo_sb3.common.on_policy import (
+    CostActorCriticPolicy,
+    CostRolloutBuffer,
+    SafeOnPolicyMixin,
+    lagrange_update,
+    lagrangian_advantage,
+)
 from sppo_sb3.pdo.policies import MlpPolicy
 
 SelfPDO = TypeVar("SelfPDO", bound="PDO")
-
-
-def lagrange_update(lagrange_multiplier: float, episode_cost: float, cost_limit: float, lagrange_lr: float) -> float:
-    """Projected dual ascent on the Lagrange multiplier: ``λ ← max(0, λ + η_λ·(J_C - d))``.
-
-    ``∂L/∂λ = -(J_C(π) - d)`` for ``L(π, λ) = J_R(π) - λ·(J_C(π) - d)``: the dual problem ``min_λ≥0 max_π L`` moves ``λ``
-    up while the measured cost exceeds the limit and down (to 0 at most) while it is below.
-
-    :param lagrange_multiplier: current ``λ >= 0``.
-    :param episode_cost: measured mean episode cost ``J_C``.
-    :param cost_limit: the limit ``d``.
-    :param lagrange_lr: dual step size ``η_λ > 0``.
-    :return: the new ``λ``.
-    """
-    return max(0.0, lagrange_multiplier + lagrange_lr * (episode_cost - cost_limit))
 
 
 class PDO(SafeOnPolicyMixin, PPO):
@@ -165,7 +155,7 @@ class PDO(SafeOnPolicyMixin, PPO):
         lam = self.update_lagrange_multiplier()
         buf = self.rollout_buffer
         assert not buf.generator_ready, "the advantages must be combined before the buffer is flattened"
-        buf.advantages = ((buf.advantages - lam * buf.cost_advantages) / (1.0 + lam)).astype(np.float32)
+        buf.advantages = lagrangian_advantage(buf.advantages, buf.cost_advantages, lam)
         super().train()
         for key, value in self._fit_critics(self.n_epochs, self.batch_size, reward_critic=False).items():
             self.logger.record(f"train/{key}", value)
