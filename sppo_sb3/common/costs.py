@@ -37,13 +37,17 @@ def shaped_cost(dist: np.ndarray | float, alpha: float) -> np.ndarray:
     return np.maximum(0.0, 1.0 - dist / alpha)
 
 
-def costs_from_infos(infos: Sequence[dict[str, Any]]) -> np.ndarray:
+def costs_from_infos(infos: Sequence[dict[str, Any]], required: bool = True) -> np.ndarray:
     """Read the violation indicator ``info["cost"]`` of every env of a VecEnv step.
 
     :param infos: the ``infos`` list returned by ``VecEnv.step``.
+    :param required: raise when an env does not report it; otherwise count 0 there (e.g. an unshielded run on
+        Pendulum-v1).
     :return: float32 array of shape ``(n_envs,)``.
-    :raises MissingCostError: when an env does not report ``info["cost"]``.
+    :raises MissingCostError: when ``required`` and an env does not report ``info["cost"]``.
     """
+    if not required:
+        return np.array([float(info.get(COST_KEY, 0.0)) for info in infos], dtype=np.float32)
     try:
         return np.array([float(info[COST_KEY]) for info in infos], dtype=np.float32)
     except KeyError:

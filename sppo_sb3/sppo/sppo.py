@@ -255,7 +255,7 @@ class SPPO(OffPolicyAlgorithm):
             if not callback.on_step():
                 return RolloutReturn(num_collected_steps * env.num_envs, num_collected_episodes, continue_training=False)
 
-            costs = costs_from_infos(infos) if self.shield_rule is not None else _optional_costs(infos)
+            costs = costs_from_infos(infos, required=self.shield_rule is not None)
             self.safety_metrics.update(rewards, costs, dones, intervened)
             self._update_info_buffer(infos, dones)
             self._store_transition(replay_buffer, self.policy.scale_action(actions), new_obs, rewards, dones, infos)
@@ -362,8 +362,3 @@ def check_finite(obs: np.ndarray, rewards: np.ndarray) -> None:
             "The environment returned a non-finite observation or reward. SPPO cannot learn from NaN/inf: check the "
             "env's dynamics or wrap it with stable_baselines3.common.vec_env.VecCheckNan to find the step."
         )
-
-
-def _optional_costs(infos: list[dict[str, Any]]) -> np.ndarray:
-    """Costs for an unshielded run: ``info["cost"]`` where the env reports it, 0 elsewhere (e.g. Pendulum-v1)."""
-    return np.array([float(info.get("cost", 0.0)) for info in infos], dtype=np.float32)
