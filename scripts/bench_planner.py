@@ -5,7 +5,10 @@ Runs, in one process and on the same model weights:
 - ``peak``: the best square matmul throughput of the device (the reference "100%"), in fp32 and bf16;
 - ``reference``: a straightforward TD-MPC-style planner — one env at a time, every iteration re-scoring all
   ``N + N_π`` trajectories with plain ``nn.Module`` calls;
-- ``sppo``: the package's batched planner (:class:`sppo_sb3.sppo.planner.MPPIPlanner`), fp32 and bf16.
+- ``sppo``: the package's batched planner (:class:`sppo_sb3.sppo.planner.MPPIPlanner`), fp32 and bf16;
+- ``gemm floor``: the planner's own matmuls alone — the same shapes and counts, without bias, activations or Python —
+  the fastest any planner of this network can be with this machine's GEMM kernels. Its ``% peak`` is the ceiling for
+  the planners' ``% peak``.
 
 Sizes: TD-MPC, the class default (N=512+25 policy samples, k=64, J=6, H=5, hidden 512, latent 50), and the small
 configuration of ``hyperparams/sppo.yml`` for low-dimensional tasks.
@@ -18,10 +21,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import time
 from collections.abc import Callable
 from dataclasses import replace
 from functools import partial
+from typing import Any
 
 import torch as th
 from torch import nn
@@ -30,7 +35,7 @@ from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
 from sppo_sb3.sppo.policies import TOLD
 
 OBS_DIM, ACTION_DIM = 17, 6  # Half-Cheetah sizes
-SIZES = {
+SIZES: dict[str, dict[str, Any]] = {
     # the class defaults (TD-MPC): N=512 (+25 policy samples), k=64, J=6, H=5, hidden 512, latent 50
     "td-mpc": dict(latent_dim=50, encoder_dim=256, hidden_dim=512, config=MPPIConfig()),
     # hyperparams/sppo.yml's low-dimensional tasks (Point Robot, Pendulum)
@@ -64,9 +69,9 @@ def timed(fn: Callable[[], object], device: th.device, repeats: int) -> float:
 def matmul_peak(device: th.device, dtype: th.dtype) -> float:
     """Best GFLOP/s of square matmuls of a few sizes on ``device``."""
     best = 0.0
-    for n in (1024, 2048):
+    for n in (1024, 1536, 2048):
         a, b = th.randn(n, n, device=device, dtype=dtype), th.randn(n, n, device=device, dtype=dtype)
-        seconds = timed(partial(th.matmul, a, b), device, repeats=5)
+        seconds = timed(partial(th.matmul, a, b), device, repeats=10)
         best = max(best, 2 * n**3 / seconds / 1e9)
     return best
 
@@ -74,6 +79,26 @@ def matmul_peak(device: th.device, dtype: th.dtype) -> float:
 def linear_flops(net: nn.Module) -> int:
     """Multiply-add FLOPs of one sample through every Linear layer of ``net``."""
     return sum(2 * m.in_features * m.out_features for m in net.modules() if isinstance(m, nn.Linear))
+
+
+def linear_layers(net: nn.Module) -> list[nn.Linear]:
+    return [m for m in net.modules() if isinstance(m, nn.Linear)]
+
+
+def gemm_floor(model: TOLD, cfg: MPPIConfig, n_envs: int, device: th.device, repeats: int) -> tuple[float, int]:
+    """Seconds and FLOPs of the scoring matmuls of one ``plan`` call alone (eq. 10 for ``J`` iterations, in the
+    planner's row blocks): every Linear of ``d`` and ``R`` ``H`` times, of ``π``, ``Q1`` and ``Q2`` once, per block."""
+    rows = n_envs * cfg.num_samples
+    n_blocks = math.ceil(rows / cfg.max_rows)
+    block_rows = math.ceil(rows / n_blocks)
+    step = linear_layers(model.dynamics) + linear_layers(model.reward)
+    terminal = linear_layers(model.pi) + linear_layers(model.q1) + linear_layers(model.q2)
+    seconds, flops = 0.0, 0
+    for layer, calls in [(m, cfg.horizon) for m in step] + [(m, 1) for m in terminal]:
+        x = th.randn(block_rows, layer.in_features, device=device)
+        seconds += calls * timed(partial(th.mm, x, layer.weight.detach().t()), device, repeats)
+        flops += calls * 2 * block_rows * layer.in_features * layer.out_features
+    return seconds * n_blocks * cfg.iterations, flops * n_blocks * cfg.iterations
 
 
 def planner_flops(model: TOLD, cfg: MPPIConfig, n_envs: int, rescore_policy: bool) -> int:
@@ -123,7 +148,7 @@ def run(device: th.device, n_envs_list: list[int], repeats: int, sizes: list[str
     results = []
     peak32, peak16 = matmul_peak(device, th.float32), matmul_peak(device, th.bfloat16)
     print(f"\n[{device}] matmul peak: fp32 {peak32:.1f} GFLOP/s, bf16 {peak16:.1f} GFLOP/s")
-    print(f"{'size':8} {'n_envs':>6} {'planner':>14} {'ms/action':>10} {'GFLOP/s':>8} {'% peak':>7} {'speed-up':>9}")
+    print(f"{'size':8} {'n_envs':>6} {'planner':>16} {'ms/action':>10} {'GFLOP/s':>8} {'% peak':>7} {'speed-up':>9}")
     for size in sizes:
         spec = SIZES[size]
         cfg = replace(spec["config"], horizon_warmup=0, min_std_decay=0)  # full horizon, final ε
@@ -133,17 +158,18 @@ def run(device: th.device, n_envs_list: list[int], repeats: int, sizes: list[str
             ref_reps = 1 if n_envs > 8 else repeats
             ref_s = timed(partial(reference_plan, model, obs, cfg), device, ref_reps)
             ref_flops = planner_flops(model, cfg, n_envs, rescore_policy=True)
+            sppo_flops = planner_flops(model, cfg, n_envs, rescore_policy=False)
             rows = [("reference fp32", ref_s, ref_flops, peak32)]
-            for dtype, peak in (("float32", peak32), ("bfloat16", peak16)):
-                planner = MPPIPlanner(replace(cfg, dtype=dtype), n_envs, ACTION_DIM, device)
-                sppo_s = timed(partial(planner.plan, model, obs, 10**9), device, repeats)
-                rows.append((f"sppo {dtype[:4]}", sppo_s, planner_flops(model, cfg, n_envs, rescore_policy=False), peak))
+            for name, variant, peak in [("sppo fp32", cfg, peak32), ("sppo bf16", replace(cfg, dtype="bfloat16"), peak16)]:
+                planner = MPPIPlanner(variant, n_envs, ACTION_DIM, device)
+                rows.append((name, timed(partial(planner.plan, model, obs, 10**9), device, repeats), sppo_flops, peak))
+            rows.append(("gemm floor fp32", *gemm_floor(model, cfg, n_envs, device, repeats), peak32))
             for name, seconds, flops, peak in rows:
                 gflops = flops / seconds / 1e9
                 row = dict(device=str(device), size=size, n_envs=n_envs, planner=name, ms_per_action=1e3 * seconds / n_envs,
                            gflops=gflops, pct_peak=100 * gflops / peak, speedup=ref_s / seconds)  # fmt: skip
                 results.append(row)
-                print(f"{size:8} {n_envs:6d} {name:>14} {row['ms_per_action']:10.2f} {gflops:8.1f} {row['pct_peak']:6.0f}% "
+                print(f"{size:8} {n_envs:6d} {name:>16} {row['ms_per_action']:10.2f} {gflops:8.1f} {row['pct_peak']:6.0f}% "
                       f"{row['speedup']:8.2f}x")  # fmt: skip
     return results
 

@@ -6,7 +6,7 @@ import pytest
 import torch as th
 
 from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner, linear_schedule, low_precision_copy, refit_gaussian
-from sppo_sb3.sppo.policies import TOLD
+from sppo_sb3.sppo.policies import ELU, TOLD
 
 
 def tiny_model(obs_dim: int = 3, action_dim: int = 2) -> TOLD:
@@ -109,3 +109,12 @@ def test_bfloat16_planner_tracks_fp32_returns():
         _, r16 = shadow.next(z.bfloat16(), action.bfloat16())
     assert r16.dtype == th.float32
     assert th.allclose(r16, r32, atol=0.05 * r32.abs().max().item())
+
+
+def test_inference_elu_equals_torch_elu_and_keeps_autograd():
+    x = th.cat([th.randn(4096) * 5, th.tensor([0.0, -1e4, 1e4, -1e-8, 1e-8])])
+    with th.no_grad():
+        assert th.allclose(ELU()(x), th.nn.functional.elu(x), atol=1e-6, rtol=0)
+    x.requires_grad_(True)
+    ELU()(x).sum().backward()  # with autograd on it is F.elu, whose gradient is exp(x) below 0 and 1 above
+    assert x.grad is not None and th.allclose(x.grad, th.where(x > 0, th.ones_like(x), th.exp(x.detach())))

@@ -16,7 +16,21 @@ from stable_baselines3.common.type_aliases import PyTorchObs
 from torch import nn
 
 
-def mlp(in_dim: int, hidden: list[int], out_dim: int, activation: type[nn.Module] = nn.ELU) -> nn.Sequential:
+class ELU(nn.ELU):
+    """ELU (α = 1) whose no-grad forward takes ``max(x, exp(min(x, 0)) - 1)``: four vectorised passes.
+
+    PyTorch's CPU ELU kernel runs ~2.4× slower than that on a 536×512 batch, and the planner evaluates ELU on every
+    hidden layer of every rollout step (19% of its time with the stock kernel). With autograd on it is ``F.elu``.
+    """
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        if th.is_grad_enabled() or self.alpha != 1.0:
+            return super().forward(x)
+        negative = th.clamp(x, max=0.0).exp_().sub_(1.0)
+        return th.maximum(x, negative, out=negative)
+
+
+def mlp(in_dim: int, hidden: list[int], out_dim: int, activation: type[nn.Module] = ELU) -> nn.Sequential:
     """``Linear → activation`` for each hidden width, then a final ``Linear``."""
     layers: list[nn.Module] = []
     for width in hidden:
@@ -33,7 +47,7 @@ def q_network(in_dim: int, hidden_dim: int) -> nn.Sequential:
         nn.LayerNorm(hidden_dim),
         nn.Tanh(),
         nn.Linear(hidden_dim, hidden_dim),
-        nn.ELU(),
+        ELU(),
         nn.Linear(hidden_dim, 1),
     )
 
