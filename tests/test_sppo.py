@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
+import zipfile
+from collections.abc import Iterator
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -107,6 +112,43 @@ def test_loading_to_deploy_does_not_allocate_the_replay_buffer(tmp_path):
     loaded = SPPO.load(tmp_path / "sppo", env=gym.make("SafePointCircle-v0"))
     assert loaded.replay_buffer is None
     assert loaded.predict(np.zeros(4, dtype=np.float32))[0].shape == (2,)
+
+
+@contextlib.contextmanager
+def storages_tagged_as_cuda() -> Iterator[None]:
+    """``torch.save`` records every storage at ``cuda:0``, as in a model saved on a GPU machine."""
+
+    def tag(storage: object) -> str | None:
+        return "cuda:0" if getattr(storage, "device", None) == th.device("cpu") else None
+
+    def no_restore(storage: object, location: str) -> None:
+        return None
+
+    entry = (0, tag, no_restore)
+    th.serialization.register_package(*entry)
+    try:
+        yield
+    finally:
+        th.serialization._package_registry.remove(entry)
+
+
+def test_a_model_saved_on_cuda_loads_on_cpu(tmp_path):
+    model = tiny_sppo().learn(80)
+    with storages_tagged_as_cuda():
+        model.save(tmp_path / "sppo")
+    if not th.cuda.is_available():  # the file really holds CUDA storages: a plain torch.load cannot place them
+        with zipfile.ZipFile(tmp_path / "sppo.zip") as archive, pytest.raises(RuntimeError, match="CUDA"):
+            th.load(io.BytesIO(archive.read("policy.pth")), weights_only=True)
+    loaded = SPPO.load(tmp_path / "sppo", device="cpu")
+    assert all(p.device.type == "cpu" for p in loaded.policy.parameters())
+    obs = np.array([[0.2, -0.3, 0.5, 0.1]], dtype=np.float32)
+    th.manual_seed(7)
+    expected, _ = model.predict(obs, deterministic=True)
+    th.manual_seed(7)
+    np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], expected)
+    loaded.set_env(model.get_env())
+    loaded.learn(20, reset_num_timesteps=False)  # the restored optimisers step on the CPU
+    assert loaded.num_timesteps == 100
 
 
 def test_seeded_runs_are_identical():
