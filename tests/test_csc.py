@@ -59,6 +59,7 @@ def test_save_load_same_deterministic_predict_and_metrics(tmp_path):
     loaded = CSC.load(tmp_path / "csc")
     after, _ = loaded.predict(obs, deterministic=True)
     np.testing.assert_array_equal(before, after)
+    assert loaded._cost_buffer is None  # deploying allocates no replay buffer
     assert loaded.safety_metrics.summary() == pytest.approx(model.safety_metrics.summary(), nan_ok=True)
     assert loaded.lagrange_multiplier == model.lagrange_multiplier
     assert loaded.cost_threshold == model.cost_threshold

@@ -90,7 +90,7 @@ class CSC(PPO):
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": CSCPolicy}
     policy: CSCPolicy
-    cost_buffer: ReplayBuffer
+    _cost_buffer: ReplayBuffer | None
 
     def __init__(
         self,
@@ -193,11 +193,22 @@ class CSC(PPO):
     def _setup_model(self) -> None:
         super()._setup_model()
         self._sync_policy()
-        self._make_cost_buffer()
+        self._cost_buffer = None
 
-    def _make_cost_buffer(self) -> None:
+    @property
+    def cost_buffer(self) -> ReplayBuffer:
+        """The cost critic's replay buffer, allocated on first use: a model loaded to deploy allocates none."""
+        if self._cost_buffer is None:
+            self._cost_buffer = self._make_cost_buffer()
+        return self._cost_buffer
+
+    @cost_buffer.setter
+    def cost_buffer(self, buffer: ReplayBuffer) -> None:
+        self._cost_buffer = buffer
+
+    def _make_cost_buffer(self) -> ReplayBuffer:
         action_shape = self.action_space.shape
-        self.cost_buffer = ReplayBuffer(
+        return ReplayBuffer(
             self.cost_buffer_size,
             self.observation_space,
             spaces.Box(-1.0, 1.0, shape=action_shape, dtype=np.float32),  # normalised clipped actions
@@ -223,12 +234,12 @@ class CSC(PPO):
         self.safety_metrics.resize(self.n_envs)
         if reset_num_timesteps or self._last_obs is None:  # SB3 resets the envs: running episodes start over
             self.safety_metrics.restart_episodes()
-        if self.cost_buffer.n_envs != self.n_envs:
-            self._make_cost_buffer()  # a new env with another number of envs: the old transitions cannot be kept
+        if self._cost_buffer is not None and self._cost_buffer.n_envs != self.n_envs:
+            self._cost_buffer = None  # a new env with another number of envs: the old transitions cannot be kept
         return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "cost_buffer"]
+        return [*super()._excluded_save_params(), "_cost_buffer"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer", "policy.cost_optimizer"], []
