@@ -1,9 +1,9 @@
 """``sppo-enjoy`` / ``python -m sppo_sb3.enjoy``: rl-zoo3's enjoy command with the package's algorithms.
 
 Every rl-zoo3 flag works unchanged (``--algo sppo --env SafePointCircle-v0 -f logs/ --no-render -n 1000``). Models
-are loaded to be watched: SPPO allocates no replay buffer (it does so on its first ``learn`` only) and CSC gets a
-1-transition cost buffer. Each finished episode's cost and violations are printed after its reward, and the totals
-(mean cost, violations, safety rate) at the end.
+are loaded to be watched: SPPO and CSC allocate no replay buffer (they do so on their first ``learn`` only). Each
+finished episode's cost and violations are printed after its reward, and the totals (mean cost, violations, safety
+rate) at the end.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def main(argv: Sequence[str] | None = None) -> None:
 
     from sppo_sb3.zoo import register_algos
 
-    register_algos(deploy=True)
+    register_algos()
     zoo_enjoy.create_test_env = _cost_reporting(zoo_enjoy.create_test_env)  # type: ignore[attr-defined]
     saved_argv = sys.argv
     sys.argv = [saved_argv[0] if saved_argv else "sppo-enjoy", *(sys.argv[1:] if argv is None else argv)]

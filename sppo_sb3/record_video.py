@@ -19,7 +19,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     """
     from sppo_sb3.zoo import register_algos
 
-    register_algos(deploy=True)
+    register_algos()
     saved_argv = sys.argv
     sys.argv = [saved_argv[0] if saved_argv else "sppo-record-video", *(sys.argv[1:] if argv is None else argv)]
     try:

@@ -53,11 +53,6 @@ ALGO_IMPORTS: dict[str, tuple[str, str]] = {
     "sailr": ("sppo_sb3.sailr", "SAILR"),
     "csc": ("sppo_sb3.csc", "CSC"),
 }
-#: the package's off-policy algorithms (replay buffer; rl-zoo3's enjoy passes them no ``buffer_size=1``, but SPPO
-#: allocates its buffer on the first ``learn`` only, so loading it to watch allocates nothing)
-OFF_POLICY_ALGOS: frozenset[str] = frozenset({"sppo"})
-#: keyword arguments given to ``load`` when a model is loaded to be watched (enjoy / record_video), not trained
-DEPLOY_LOAD_KWARGS: dict[str, dict[str, Any]] = {"csc": {"cost_buffer_size": 1}}
 #: algorithms that could not be imported, with the reason
 UNAVAILABLE: dict[str, str] = {}
 
@@ -81,25 +76,13 @@ def algo_classes() -> dict[str, type[BaseAlgorithm]]:
     return classes
 
 
-def _deploy_class(cls: type[BaseAlgorithm], defaults: dict[str, Any]) -> type[BaseAlgorithm]:
-    """A subclass of ``cls`` whose ``load`` defaults to ``defaults`` (e.g. a 1-transition buffer to watch a model)."""
-
-    def load(klass: type[BaseAlgorithm], path: Any, *args: Any, **kwargs: Any) -> BaseAlgorithm:
-        return cls.load.__func__(klass, path, *args, **{**defaults, **kwargs})  # type: ignore[attr-defined]
-
-    return type(cls.__name__, (cls,), {"load": classmethod(load), "__module__": cls.__module__})
-
-
-def register_algos(deploy: bool = False) -> dict[str, type[BaseAlgorithm]]:
+def register_algos() -> dict[str, type[BaseAlgorithm]]:
     """Add the package's algorithms to rl-zoo3's ``ALGOS`` and their samplers to the zoo's Optuna tables.
 
-    :param deploy: register the classes for watching models (enjoy, record_video): their ``load`` then defaults to
-        :data:`DEPLOY_LOAD_KWARGS` (no training buffers). Never use it to train.
     :return: the registered classes, by zoo name.
     """
     classes = algo_classes()
-    for name, cls in classes.items():
-        ZOO_ALGOS[name] = _deploy_class(cls, DEPLOY_LOAD_KWARGS[name]) if deploy and name in DEPLOY_LOAD_KWARGS else cls
+    ZOO_ALGOS.update(classes)
     register_samplers(classes)
     return classes
 
@@ -189,7 +172,7 @@ def register_samplers(classes: dict[str, type[BaseAlgorithm]] | None = None) -> 
 
 
 # ---------------------------------------------------------------------------------------------------- hyperparams
-def _eval(source: str) -> Any:
+def eval_yml_string(source: str) -> Any:
     """Evaluate a yml string as rl-zoo3 does (``nn``, ``th`` and ``np`` in scope: ``activation_fn=nn.ReLU``)."""
     return eval(source, {"nn": nn, "th": th, "np": np})  # same trust model as rl-zoo3's own eval of policy_kwargs
 
@@ -204,7 +187,7 @@ def eval_kwargs_strings(hyperparams: dict[str, Any]) -> dict[str, Any]:
     """
     for key, value in list(hyperparams.items()):
         if key.endswith("_kwargs") and key not in _ZOO_KWARGS_KEYS and isinstance(value, str):
-            hyperparams[key] = _eval(value)
+            hyperparams[key] = eval_yml_string(value)
     return hyperparams
 
 
@@ -218,7 +201,7 @@ def merge_kwargs(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]
     for key, value in update.items():
         old = merged.get(key)
         if isinstance(old, str) and key.endswith("_kwargs"):
-            old = _eval(old)
+            old = eval_yml_string(old)
         merged[key] = {**old, **value} if isinstance(old, dict) and isinstance(value, dict) else value
     return merged
 
