@@ -21,10 +21,9 @@ import yaml
 from stable_baselines3 import SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
-from torch import nn
 
 from sppo_sb3 import SPPO
-from sppo_sb3.zoo import eval_kwargs_strings
+from sppo_sb3.zoo import eval_kwargs_strings, eval_yml_string
 
 HYPERPARAMS = Path(__file__).resolve().parents[1] / "hyperparams" / "sppo.yml"
 
@@ -56,7 +55,7 @@ def sppo_kwargs(env_id: str) -> dict[str, Any]:
         raise SystemExit(f"{HYPERPARAMS} has no entry for {env_id} (it has: {', '.join(entries)})")
     kwargs = eval_kwargs_strings(dict(entries[env_id]))
     if isinstance(kwargs.get("policy_kwargs"), str):  # rl-zoo3 evaluates this one itself
-        kwargs["policy_kwargs"] = eval(kwargs["policy_kwargs"], {"nn": nn, "th": th})
+        kwargs["policy_kwargs"] = eval_yml_string(kwargs["policy_kwargs"])
     for key in ("n_timesteps", "policy", "n_envs", "normalize"):
         kwargs.pop(key, None)
     return kwargs
