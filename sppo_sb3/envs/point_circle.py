@@ -83,13 +83,13 @@ class SafePointCircleEnv(gym.Env[np.ndarray, np.ndarray]):
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}  # noqa: RUF012
+    observation_space: gym.spaces.Box
 
     def __init__(self, alpha: float = 0.5, render_mode: str | None = None) -> None:
         self.params = PointParams()
         self.alpha = alpha
         self.render_mode = render_mode
         high = np.array([15.0, 15.0, self.params.max_speed, self.params.max_speed], dtype=np.float32)
-        self._obs_high = high
         self.observation_space = gym.spaces.Box(-high, high, dtype=np.float32)
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self.state = np.zeros(4)
@@ -107,7 +107,7 @@ class SafePointCircleEnv(gym.Env[np.ndarray, np.ndarray]):
         unsafe = bool(point_is_unsafe(self.state, self.params))
         dist = point_distance_to_unsafe(self.state, self.params)
         info = {COST_KEY: float(unsafe), "shaped_cost": float(shaped_cost(dist, self.alpha))}
-        obs = np.clip(self.state, -self._obs_high, self._obs_high).astype(np.float32)
+        obs = np.clip(self.state, self.observation_space.low, self.observation_space.high).astype(np.float32)
         return obs, reward, unsafe, False, info
 
     def default_shielding_rule(self) -> Any:
