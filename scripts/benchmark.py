@@ -298,12 +298,11 @@ def summarize(
     unsafe = int((curve["violations"] > 0).sum())
     if timesteps is None:
         timesteps = int(safety["num_timesteps"]) if safety and "num_timesteps" in safety else int(curve["length"].sum())
-    steps = timesteps
     summary: dict[str, Any] = {
         "task": spec.task,
         "algo": spec.algo,
         "seed": spec.seed,
-        "steps": steps,
+        "steps": timesteps,
         "episodes": episodes,
         "return_last_n": float(last["return"].mean()) if episodes else float("nan"),
         "return_last_n_std": float(last["return"].std(ddof=0)) if episodes else float("nan"),
@@ -313,7 +312,7 @@ def summarize(
         "cumulative_interventions": None,
         "safety_source": "monitor",
         "wall_clock_s": round(wall_s, 3),
-        "steps_per_s": steps / wall_s if wall_s > 0 else float("nan"),
+        "steps_per_s": timesteps / wall_s if wall_s > 0 else float("nan"),
         "train_steps_per_s": float("nan"),
         "command": shlex.join(cmd),
     }
