@@ -5,10 +5,11 @@ Runs, in one process and on the same model weights:
 - ``peak``: the best square matmul throughput of the device (the reference "100%"), in fp32 and bf16;
 - ``reference``: a straightforward TD-MPC-style planner — one env at a time, every iteration re-scoring all
   ``N + N_π`` trajectories with plain ``nn.Module`` calls;
-- ``sppo``: the package's batched planner (:class:`sppo_sb3.sppo.planner.MPPIPlanner`), fp32 and bf16;
+- ``sppo``: the package's batched planner (:class:`sppo_sb3.sppo.planner.MPPIPlanner`), fp32 and bf16, eager and
+  compiled (``torch.compile``; its compile time is printed apart and not in the figures);
 - ``gemm floor``: the planner's own matmuls alone — the same shapes and counts, without bias, activations or Python —
   the fastest any planner of this network can be with this machine's GEMM kernels. Its ``% peak`` is the ceiling for
-  the planners' ``% peak``.
+  the planners' ``% peak``, and ``% floor`` says how close a planner comes to it.
 
 Sizes: TD-MPC, the class default (N=512+25 policy samples, k=64, J=6, H=5, hidden 512, latent 50), and the small
 configuration of ``hyperparams/sppo.yml`` for low-dimensional tasks.
@@ -148,7 +149,7 @@ def run(device: th.device, n_envs_list: list[int], repeats: int, sizes: list[str
     results = []
     peak32, peak16 = matmul_peak(device, th.float32), matmul_peak(device, th.bfloat16)
     print(f"\n[{device}] matmul peak: fp32 {peak32:.1f} GFLOP/s, bf16 {peak16:.1f} GFLOP/s")
-    print(f"{'size':8} {'n_envs':>6} {'planner':>16} {'ms/action':>10} {'GFLOP/s':>8} {'% peak':>7} {'speed-up':>9}")
+    print(f"{'size':8} {'n_envs':>6} {'planner':>20} {'ms/action':>10} {'GFLOP/s':>8} {'% peak':>7} {'% floor':>8} {'speed-up':>9}")
     for size in sizes:
         spec = SIZES[size]
         cfg = replace(spec["config"], horizon_warmup=0, min_std_decay=0)  # full horizon, final ε
@@ -160,17 +161,26 @@ def run(device: th.device, n_envs_list: list[int], repeats: int, sizes: list[str
             ref_flops = planner_flops(model, cfg, n_envs, rescore_policy=True)
             sppo_flops = planner_flops(model, cfg, n_envs, rescore_policy=False)
             rows = [("reference fp32", ref_s, ref_flops, peak32)]
-            for name, variant, peak in [("sppo fp32", cfg, peak32), ("sppo bf16", replace(cfg, dtype="bfloat16"), peak16)]:
-                planner = MPPIPlanner(variant, n_envs, ACTION_DIM, device)
-                rows.append((name, timed(partial(planner.plan, model, obs, 10**9), device, repeats), sppo_flops, peak))
-            rows.append(("gemm floor fp32", *gemm_floor(model, cfg, n_envs, device, repeats), peak32))
+            for name, variant, peak in [("fp32", cfg, peak32), ("bf16", replace(cfg, dtype="bfloat16"), peak16)]:
+                for compiled in (False, True):
+                    planner = MPPIPlanner(variant, ACTION_DIM, device, compile=compiled)
+                    plan = partial(planner.plan, model, obs, planner.initial_mean(n_envs), 10**9)
+                    if compiled:
+                        start = time.perf_counter()
+                        plan()
+                        print(f"  (compiling the {name} planner for {n_envs} envs took {time.perf_counter() - start:.1f} s)")
+                    label = f"sppo {name}{' compiled' if compiled else ''}"
+                    rows.append((label, timed(plan, device, repeats), sppo_flops, peak))
+            floor_s, floor_flops = gemm_floor(model, cfg, n_envs, device, repeats)
+            rows.append(("gemm floor fp32", floor_s, floor_flops, peak32))
             for name, seconds, flops, peak in rows:
                 gflops = flops / seconds / 1e9
                 row = dict(device=str(device), size=size, n_envs=n_envs, planner=name, ms_per_action=1e3 * seconds / n_envs,
-                           gflops=gflops, pct_peak=100 * gflops / peak, speedup=ref_s / seconds)  # fmt: skip
+                           gflops=gflops, pct_peak=100 * gflops / peak, pct_floor=100 * floor_s / seconds,
+                           speedup=ref_s / seconds)  # fmt: skip
                 results.append(row)
-                print(f"{size:8} {n_envs:6d} {name:>16} {row['ms_per_action']:10.2f} {gflops:8.1f} {row['pct_peak']:6.0f}% "
-                      f"{row['speedup']:8.2f}x")  # fmt: skip
+                print(f"{size:8} {n_envs:6d} {name:>20} {row['ms_per_action']:10.2f} {gflops:8.1f} {row['pct_peak']:6.0f}% "
+                      f"{row['pct_floor']:7.0f}% {row['speedup']:8.2f}x")  # fmt: skip
     return results
 
 

@@ -5,7 +5,16 @@ import math
 import pytest
 import torch as th
 
-from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner, linear_schedule, low_precision_copy, refit_gaussian
+from sppo_sb3.sppo.planner import (
+    MPPIConfig,
+    MPPIPlanner,
+    draw_noise,
+    linear_schedule,
+    low_precision_copy,
+    mppi,
+    refit_gaussian,
+    warm_start,
+)
 from sppo_sb3.sppo.policies import ELU, TOLD
 
 
@@ -43,32 +52,67 @@ def test_schedules_decay_linearly():
     assert linear_schedule(1.0, 2.0, 0, 3) == 2.0
 
 
-def small_planner(n_envs: int, **overrides) -> MPPIPlanner:
-    cfg = MPPIConfig(num_samples=32, num_elites=4, iterations=3, horizon=3, horizon_warmup=0, **overrides)
-    return MPPIPlanner(cfg, n_envs=n_envs, action_dim=2)
+def small_planner(**overrides) -> MPPIPlanner:
+    cfg = MPPIConfig(**{"num_samples": 32, "num_elites": 4, "iterations": 3, "horizon": 3, "horizon_warmup": 0, **overrides})
+    return MPPIPlanner(cfg, action_dim=2)
+
+
+def plan(planner: MPPIPlanner, model: TOLD, obs: th.Tensor, **kwargs) -> th.Tensor:
+    """A cold-started plan's actions."""
+    return planner.plan(model, obs, planner.initial_mean(len(obs)), 0, **kwargs)[0]
 
 
 def test_plan_shapes_bounds_and_sigma_floor():
-    model, planner = tiny_model(), small_planner(3, min_std_start=0.7, min_std_end=0.7)
-    actions = planner.plan(model, th.randn(3, 3), step=0)
-    assert actions.shape == (3, 2)
+    model, planner = tiny_model(), small_planner(min_std_start=0.7, min_std_end=0.7)
+    actions, mean = planner.plan(model, th.randn(3, 3), planner.initial_mean(3), step=0)
+    assert actions.shape == (3, 2) and mean.shape == (3, 3, 2)
     assert actions.abs().max() <= 1.0
     # eq. 11: the final σ never drops below ε, so sampled actions spread at least that much across calls
     th.manual_seed(1)
-    draws = th.stack([small_planner(1, min_std_start=0.7, min_std_end=0.7).plan(model, th.zeros(1, 3), 0) for _ in range(30)])
+    draws = th.stack([plan(planner, model, th.zeros(1, 3)) for _ in range(30)])
     assert draws.std(0).min() > 0.2
 
 
-def test_warm_start_shifts_by_one_step_and_resets_per_env():
-    model, planner = tiny_model(), small_planner(2)
-    planner.plan(model, th.randn(2, 3), step=0)
-    previous = planner.prev_mean.clone()
-    shifted = planner.warm_start(3)
+def test_warm_start_shifts_by_one_step():
+    previous = th.randn(2, 3, 2)
+    shifted = warm_start(previous, 3)
     assert th.equal(shifted[:, :-1], previous[:, 1:])
     assert th.all(shifted[:, -1] == 0)
-    planner.reset(th.tensor([True, False]))
-    assert th.all(planner.prev_mean[0] == 0)
-    assert th.equal(planner.prev_mean[1], previous[1])
+    assert warm_start(previous, 2).shape == (2, 2, 2)
+
+
+def test_the_plan_starts_from_the_given_state():
+    """The warm start is the caller's: the returned mean seeds the next plan, and other means give other plans."""
+    model, planner = tiny_model(), small_planner(iterations=1, momentum=0.9)
+    obs = th.randn(2, 3)
+    _, mean = planner.plan(model, obs, planner.initial_mean(2), 0)
+    gen = th.Generator().manual_seed(0)
+    warm, _ = planner.plan(model, obs, mean, 0, deterministic=True, generator=gen)
+    cold, _ = planner.plan(model, obs, planner.initial_mean(2), 0, deterministic=True, generator=gen.manual_seed(0))
+    assert not th.allclose(warm, cold)
+    with pytest.raises(ValueError, match="state must have shape"):
+        planner.plan(model, obs, planner.initial_mean(3), 0)
+
+
+def test_deterministic_plans_are_a_pure_function_of_obs_state_and_generator():
+    model, planner = tiny_model(), small_planner()
+    obs, state = th.randn(2, 3), th.rand(2, 3, 2) - 0.5
+    first = planner.plan(model, obs, state, 0, deterministic=True, generator=th.Generator().manual_seed(5))
+    second = planner.plan(model, obs, state, 0, deterministic=True, generator=th.Generator().manual_seed(5))
+    assert th.equal(first[0], second[0]) and th.equal(first[1], second[1])
+    assert th.equal(first[0], first[1][:, 0].clamp(-1, 1))  # deterministic: μ_J's first action
+
+
+def test_mppi_is_a_function_of_its_noise():
+    """All randomness enters through PlanNoise: the same noise gives the same plan, whatever torch's RNG does."""
+    model, cfg = tiny_model(), MPPIConfig(num_samples=16, num_elites=4, iterations=2, horizon=3)
+    noise = draw_noise(cfg, 2, 3, 2, False, None, th.device("cpu"))
+    obs, warm, min_std = th.randn(2, 3), th.zeros(2, 3, 2), th.tensor(0.1)
+    with th.no_grad():
+        first = mppi(model, obs, warm, noise, min_std, cfg)
+        th.manual_seed(123)
+        second = mppi(model, obs, warm, noise, min_std, cfg)
+    assert th.equal(first[0], second[0]) and th.equal(first[1], second[1])
 
 
 def test_batched_planning_equals_per_env_planning_without_noise():
@@ -76,8 +120,8 @@ def test_batched_planning_equals_per_env_planning_without_noise():
     model = tiny_model()
     cfg = dict(max_std=1e-9, min_std_start=0.0, min_std_end=0.0, policy_std=0.0)
     obs = th.randn(3, 3)
-    batched = small_planner(3, **cfg).plan(model, obs, 0, deterministic=True)
-    single = th.cat([small_planner(1, **cfg).plan(model, obs[i : i + 1], 0, deterministic=True) for i in range(3)])
+    batched = plan(small_planner(**cfg), model, obs, deterministic=True)
+    single = th.cat([plan(small_planner(**cfg), model, obs[i : i + 1], deterministic=True) for i in range(3)])
     assert th.allclose(batched, single, atol=1e-5)
 
 
@@ -92,9 +136,9 @@ def test_planner_prefers_high_reward_actions():
         model.reward[0].bias.fill_(1.0)
         model.reward[2].weight.copy_(th.eye(16))  # hidden = a + 1 >= 0 passes both ELUs unchanged
         model.reward[-1].weight.fill_(0.1)
-    planner = MPPIPlanner(MPPIConfig(num_samples=64, num_elites=8, iterations=4, horizon=2, horizon_warmup=0), 1, 1)
+    planner = MPPIPlanner(MPPIConfig(num_samples=64, num_elites=8, iterations=4, horizon=2, horizon_warmup=0), 1)
     th.manual_seed(0)
-    assert planner.plan(model, th.zeros(1, 3), step=10**6, deterministic=True).item() > 0.8
+    assert planner.plan(model, th.zeros(1, 3), planner.initial_mean(1), step=10**6, deterministic=True)[0].item() > 0.8
 
 
 def test_bfloat16_planner_tracks_fp32_returns():

@@ -17,7 +17,8 @@ from sppo_sb3 import SPPO
 from sppo_sb3.common.costs import MissingCostError
 from sppo_sb3.shield import PointCircleShieldingRule
 from sppo_sb3.sppo.buffers import ShieldedReplayBuffer
-from sppo_sb3.sppo.topo import TOPOConfig, topo_update
+from sppo_sb3.sppo.optim import init_optimizer_state
+from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, topo_update
 
 TINY = dict(
     learning_starts=60,
@@ -39,11 +40,11 @@ def test_smoke_learn_predict_and_metrics():
     assert model.safety_metrics.steps == 150
     obs = np.array([0.5, 0.5, 0.1, 0.0], dtype=np.float32)
     action, state = model.predict(obs, deterministic=True)
-    assert action.shape == (2,) and state is None
+    assert action.shape == (2,) and state[0].shape == (1, 3, 2)  # the plan's mean: (n_envs, horizon, action dims)
     assert np.all(np.abs(action) <= 1.0)
     model.plan_at_predict = False
-    prior, _ = model.predict(np.stack([obs, obs]))
-    assert prior.shape == (2, 2)
+    prior, state = model.predict(np.stack([obs, obs]))
+    assert prior.shape == (2, 2) and state is None
     np.testing.assert_array_equal(prior[0], prior[1])
 
 
@@ -81,7 +82,7 @@ def test_n_envs_two_plans_all_envs_in_one_batch():
     env = make_vec_env("SafePointCircle-v0", n_envs=2, seed=0)
     model = tiny_sppo(env).learn(200)
     assert model.replay_buffer.n_envs == 2
-    assert model.planner.prev_mean.shape[0] == 2
+    assert model._plan_mean.shape[0] == 2
     actions, _ = model.predict(env.reset(), episode_start=np.ones(2, dtype=bool))
     assert actions.shape == (2, 2)
 
@@ -162,7 +163,12 @@ def test_topo_loss_decreases_on_a_fixed_batch():
     batch = model.replay_buffer.sample_sequences(64, 3)
     cfg = TOPOConfig()
     pol = model.policy
-    losses = [topo_update(pol.model, pol.model_target, pol.optimizer, pol.pi_optimizer, batch, cfg)["loss"] for _ in range(60)]
+    noise, lr, ema = th.zeros(batch.actions.shape), th.tensor(1e-3), th.tensor(0.01)
+    init_optimizer_state(pol.optimizer)
+    init_optimizer_state(pol.pi_optimizer)
+    loss = TOPO_STATS.index("loss")
+    args = (pol.model, pol.model_target, pol.optimizer, pol.pi_optimizer, batch, noise, lr, ema, cfg)
+    losses = [topo_update(*args)[loss].item() for _ in range(60)]
     assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5])
 
 
@@ -228,3 +234,46 @@ def test_nan_observations_stop_training_with_a_clear_error():
 def test_a_shield_on_an_env_without_cost_is_a_clear_error():
     with pytest.raises(MissingCostError, match=r"info\['cost'\]"):
         tiny_sppo("Pendulum-v1", shield=PointCircleShieldingRule(), learning_starts=5).learn(5)
+
+
+# ---------------------------------------------------------------- the planner's warm start as SB3's recurrent state
+def test_deterministic_predictions_repeat_and_survive_save_load(tmp_path):
+    model = tiny_sppo().learn(100)
+    obs = np.array([[0.2, -0.3, 0.5, 0.1], [1.0, 0.4, -0.2, 0.3]], dtype=np.float32)
+    first, state = model.predict(obs, deterministic=True)
+    np.testing.assert_array_equal(model.predict(obs, deterministic=True)[0], first)
+    warm, warm_state = model.predict(obs, state=state, deterministic=True)
+    np.testing.assert_array_equal(model.predict(obs, state=state, deterministic=True)[0], warm)
+    model.save(tmp_path / "sppo")
+    loaded = SPPO.load(tmp_path / "sppo")
+    np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], first)
+    np.testing.assert_array_equal(loaded.predict(obs, state=state, deterministic=True)[0], warm)
+    restarted, _ = model.predict(obs, state=warm_state, episode_start=np.array([True, False]), deterministic=True)
+    np.testing.assert_array_equal(restarted[0], first[0])  # a new episode plans from a cold start
+
+
+def test_evaluation_during_training_leaves_training_unchanged(tmp_path):
+    """EvalCallback calls predict between rollouts: training's warm start, data and updates must not notice."""
+    from stable_baselines3.common.callbacks import EvalCallback
+
+    plain = tiny_sppo(seed=4).learn(160)
+    evaluated = tiny_sppo(seed=4)
+    eval_env = make_vec_env("SafePointCircle-v0", n_envs=3, seed=9, env_kwargs=dict(max_episode_steps=20))
+    callback = EvalCallback(eval_env, eval_freq=50, n_eval_episodes=3, log_path=str(tmp_path), verbose=0)
+    evaluated.learn(160, callback=callback)
+    assert callback.n_calls == 160 and len(callback.evaluations_results) == 3
+    th.testing.assert_close(evaluated._plan_mean, plain._plan_mean, rtol=0, atol=0)
+    for a, b in zip(plain.policy.parameters(), evaluated.policy.parameters()):
+        assert th.equal(a, b)
+
+
+@pytest.mark.parametrize("train_envs", [1, 2])
+def test_evaluation_on_vec_envs_of_any_size(train_envs):
+    from stable_baselines3.common.evaluation import evaluate_policy
+
+    model = tiny_sppo(make_vec_env("Pendulum-v1", n_envs=train_envs, seed=0), shield=None, learning_starts=30).learn(60)
+    for eval_envs in (1, 2, 5, 7):
+        env = make_vec_env("Pendulum-v1", n_envs=eval_envs, seed=1, env_kwargs=dict(max_episode_steps=10))
+        rewards, lengths = evaluate_policy(model, env, n_eval_episodes=eval_envs, return_episode_rewards=True)
+        assert len(rewards) == eval_envs and set(lengths) == {10}
+    assert model._plan_mean.shape[0] == train_envs

@@ -1,7 +1,12 @@
 """Policy-guided MPPI in TOLD's latent space (eqs. 2, 3, 10, 11; Alg. 2 lines 2–15), batched over all envs.
 
-Shapes: ``E`` envs, ``N`` Gaussian samples, ``P`` policy samples, ``H`` horizon, ``A`` action dims. Every tensor
-carries all envs at once; the only Python loops run over the ``H`` model steps and the ``J`` iterations.
+Shapes: ``E`` envs, ``N`` Gaussian samples, ``P`` policy samples, ``H`` horizon, ``A`` action dims, ``J`` iterations.
+Every tensor carries all envs at once; the only Python loops run over the ``H`` model steps and the ``J`` iterations.
+
+:func:`mppi` is a pure function of the observations, the warm start and the noise drawn for it (:class:`PlanNoise`),
+so it compiles into one graph per (horizon, n_envs) and repeats exactly given the same inputs. The warm start is the
+planner's state: :class:`MPPIPlanner` draws the noise and keeps no state of its own; the caller owns the warm start
+(SPPO keeps training's, ``SPPO.predict`` takes and returns it as SB3's recurrent ``state``).
 """
 
 from __future__ import annotations
@@ -9,10 +14,12 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import torch as th
 from torch import nn
 
+from sppo_sb3.common.compile import CompiledFunction
 from sppo_sb3.sppo.policies import TOLD
 
 
@@ -95,38 +102,84 @@ def low_precision_copy(model: TOLD, dtype: th.dtype) -> TOLD:
     return shadow
 
 
-def trajectory_return(model: TOLD, z: th.Tensor, actions: th.Tensor, gamma: float, policy_std: float) -> th.Tensor:
+class PlanNoise(NamedTuple):
+    """Standard normal draws for one call of :func:`mppi`.
+
+    :param samples: ``(J, E, N, H, A)`` for the Gaussian action sequences.
+    :param terminal: ``(J, E·N, A)`` for the policy noise on ``π(z_H)`` of those sequences (eq. 10).
+    :param policy: ``(H + 1, E·P, A)`` for the policy noise along the ``π`` rollouts.
+    :param action: ``(E, A)`` for the executed sample of ``N(μ_J, σ_J²)`` (zeros: deterministic).
+    """
+
+    samples: th.Tensor
+    terminal: th.Tensor
+    policy: th.Tensor
+    action: th.Tensor
+
+
+def draw_noise(
+    cfg: MPPIConfig,
+    n_envs: int,
+    horizon: int,
+    action_dim: int,
+    deterministic: bool,
+    generator: th.Generator | None,
+    device: th.device,
+) -> PlanNoise:
+    """All the randomness of one plan, drawn on ``device`` with ``generator`` (torch's global RNG if None)."""
+    shapes = (
+        (cfg.iterations, n_envs, cfg.num_samples, horizon, action_dim),
+        (cfg.iterations, n_envs * cfg.num_samples, action_dim),
+        (horizon + 1, n_envs * cfg.num_policy_samples, action_dim),
+    )
+    samples, terminal, policy = (th.randn(shape, generator=generator, device=device) for shape in shapes)
+    action = th.zeros(n_envs, action_dim, device=device)
+    if not deterministic:
+        action.normal_(generator=generator)
+    return PlanNoise(samples, terminal, policy, action)
+
+
+def trajectory_return(
+    model: TOLD, z: th.Tensor, actions: th.Tensor, gamma: float, policy_std: float, terminal_noise: th.Tensor
+) -> th.Tensor:
     """``Φ = Σ_{t<H} γ^t R(z_t, a_t) + γ^H min Q(z_H, π(z_H))`` (eq. 10) for a flat batch.
 
     :param z: ``(B, latent)`` start latents.
     :param actions: ``(H, B, A)`` action sequences.
+    :param terminal_noise: ``(B, A)`` standard normal draws for the policy noise on ``π(z_H)``.
     :return: ``(B,)`` returns.
     """
     value = th.zeros(z.shape[0], device=z.device)
     for t in range(actions.shape[0]):
         z, reward = model.next(z, actions[t])
         value += gamma**t * reward.squeeze(-1)
-    terminal = model.min_q(z, model.policy(z, policy_std)).squeeze(-1)
+    terminal = model.min_q(z, model.policy(z, policy_std, terminal_noise.to(z.dtype))).squeeze(-1)
     return value + gamma ** actions.shape[0] * terminal
 
 
-def blocked_returns(model: TOLD, z: th.Tensor, actions: th.Tensor, cfg: MPPIConfig, block_rows: int) -> th.Tensor:
+def blocked_returns(
+    model: TOLD, z: th.Tensor, actions: th.Tensor, terminal_noise: th.Tensor, cfg: MPPIConfig, block_rows: int
+) -> th.Tensor:
     """Eq. 10 for ``(B, latent)`` starts and ``(H, B, A)`` actions, in row blocks whose activations stay in cache."""
-    blocks = zip(z.split(block_rows), actions.split(block_rows, dim=1))
-    return th.cat([trajectory_return(model, zb, ab, cfg.gamma, cfg.policy_std) for zb, ab in blocks])
+    blocks = zip(z.split(block_rows), actions.split(block_rows, dim=1), terminal_noise.split(block_rows))
+    return th.cat([trajectory_return(model, zb, ab, cfg.gamma, cfg.policy_std, nb) for zb, ab, nb in blocks])
 
 
-def policy_rollout(model: TOLD, z: th.Tensor, horizon: int, gamma: float, policy_std: float) -> tuple[th.Tensor, th.Tensor]:
+def policy_rollout(
+    model: TOLD, z: th.Tensor, horizon: int, gamma: float, policy_std: float, noise: th.Tensor
+) -> tuple[th.Tensor, th.Tensor]:
     """Roll ``π`` through ``d`` (Alg. 2 line 5) and score it by eq. 10 in the same pass.
 
+    :param noise: ``(H + 1, B, A)`` standard normal draws for the policy noise.
     :return: actions ``(H, B, A)`` and returns ``(B,)``.
     """
+    noise = noise.to(z.dtype)
     actions, value = [], th.zeros(z.shape[0], device=z.device)
     for t in range(horizon):
-        actions.append(model.policy(z, policy_std))
+        actions.append(model.policy(z, policy_std, noise[t]))
         z, reward = model.next(z, actions[-1])
         value += gamma**t * reward.squeeze(-1)
-    value += gamma**horizon * model.min_q(z, model.policy(z, policy_std)).squeeze(-1)
+    value += gamma**horizon * model.min_q(z, model.policy(z, policy_std, noise[horizon])).squeeze(-1)
     return th.stack(actions), value
 
 
@@ -144,22 +197,74 @@ def refit_gaussian(elites: th.Tensor, elite_returns: th.Tensor, temperature: flo
     return mean, std
 
 
+def mppi(
+    model: TOLD, obs: th.Tensor, warm_mean: th.Tensor, noise: PlanNoise, min_std: th.Tensor, cfg: MPPIConfig
+) -> tuple[th.Tensor, th.Tensor]:
+    """Plan one action per env (Alg. 2 lines 2–15).
+
+    :param model: the TOLD model (in the planning precision).
+    :param obs: ``(E, obs_dim)`` observations.
+    :param warm_mean: ``(E, H, A)`` the initial mean ``μ_0`` (the warm start); ``H`` is this plan's horizon.
+    :param noise: the plan's standard normal draws.
+    :param min_std: ``ε`` of eq. 11 (0-d tensor).
+    :return: actions ``(E, A)`` in [-1, 1] — ``μ_J``'s first step plus ``σ_J`` times ``noise.action`` — and ``μ_J``.
+    """
+    n_envs, horizon, adim = warm_mean.shape
+    n, p = cfg.num_samples, cfg.num_policy_samples
+    z = model.encode(obs.to(next(model.parameters()).dtype))
+    pi_actions, pi_returns = policy_rollout(model, z.repeat_interleave(p, 0), horizon, cfg.gamma, cfg.policy_std, noise.policy)
+    pi_actions = pi_actions.view(horizon, n_envs, p, adim).permute(1, 2, 0, 3).float()
+    pi_returns = pi_returns.view(n_envs, p)
+    z_samples = z.repeat_interleave(n, 0)
+    block_rows = math.ceil(len(z_samples) / math.ceil(len(z_samples) / cfg.max_rows))  # equal blocks, no small tail
+    mean, std = warm_mean, th.full_like(warm_mean, cfg.max_std)
+    for j in range(cfg.iterations):
+        samples = (mean.unsqueeze(1) + std.unsqueeze(1) * noise.samples[j]).clamp(-1.0, 1.0)
+        flat = samples.permute(2, 0, 1, 3).reshape(horizon, n_envs * n, adim).to(z.dtype)
+        returns = blocked_returns(model, z_samples, flat, noise.terminal[j], cfg, block_rows).view(n_envs, n)
+        all_actions, all_returns = th.cat([samples, pi_actions], 1), th.cat([returns, pi_returns], 1)
+        elite_returns, elite_idx = all_returns.topk(cfg.num_elites, dim=1)
+        elites = all_actions.gather(1, elite_idx[:, :, None, None].expand(-1, -1, horizon, adim))
+        new_mean, new_std = refit_gaussian(elites, elite_returns, cfg.temperature)
+        mean = cfg.momentum * mean + (1.0 - cfg.momentum) * new_mean
+        std = th.maximum(new_std, min_std).clamp(max=cfg.max_std)  # eq. 11: σ ≥ ε
+    action = (mean[:, 0] + std[:, 0] * noise.action).clamp(-1.0, 1.0)
+    return action, mean
+
+
+def warm_start(prev_mean: th.Tensor, horizon: int) -> th.Tensor:
+    """The previous plan's ``(E, H_max, A)`` mean shifted by one step (its last step padded with 0), cut to ``horizon``."""
+    shifted = th.zeros_like(prev_mean)
+    shifted[:, :-1] = prev_mean[:, 1:]
+    return shifted[:, :horizon]
+
+
 class MPPIPlanner:
-    """Policy-guided MPPI with per-env warm start.
+    """Policy-guided MPPI: draws the noise, keeps the planning-precision copy of the model and the compiled plan.
+
+    The warm start is not kept here: :meth:`plan` takes the previous plan's mean and returns the new one.
 
     :param config: planner settings.
-    :param n_envs: number of envs planned for together.
     :param action_dim: action size.
     :param device: torch device of the model.
+    :param compile: compile :func:`mppi` (one graph per horizon and number of envs).
     """
 
-    def __init__(self, config: MPPIConfig, n_envs: int, action_dim: int, device: th.device | str = "cpu") -> None:
-        self.config, self.n_envs, self.action_dim = config, n_envs, action_dim
+    def __init__(self, config: MPPIConfig, action_dim: int, device: th.device | str = "cpu", compile: bool = False) -> None:
+        self.config, self.action_dim = config, action_dim
         self.device = th.device(device)
-        self.prev_mean = th.zeros(n_envs, config.horizon, action_dim, device=self.device)
         self.dtype = getattr(th, config.dtype)
         self._shadow: TOLD | None = None
         self._shadow_stale = True
+        self._mppi = CompiledFunction(mppi, compile, self.device, "planner")
+
+    @property
+    def compiled(self) -> bool:
+        return self._mppi.compiled
+
+    def initial_mean(self, n_envs: int) -> th.Tensor:
+        """The cold start: a zero ``(E, H_max, A)`` mean."""
+        return th.zeros(n_envs, self.config.horizon, self.action_dim, device=self.device)
 
     def mark_stale(self) -> None:
         """Tell a reduced-precision planner that the model's weights changed (call after each update)."""
@@ -177,55 +282,36 @@ class MPPIPlanner:
         self._shadow_stale = False
         return self._shadow
 
-    def reset(self, episode_start: th.Tensor | None = None) -> None:
-        """Forget the warm start of the envs where an episode starts (all envs if ``episode_start`` is None)."""
-        if episode_start is None:
-            self.prev_mean.zero_()
-        else:
-            self.prev_mean[episode_start.to(self.device, th.bool)] = 0.0
+    @th.no_grad()
+    def plan(
+        self,
+        model: TOLD,
+        obs: th.Tensor,
+        prev_mean: th.Tensor,
+        step: int,
+        deterministic: bool = False,
+        generator: th.Generator | None = None,
+    ) -> tuple[th.Tensor, th.Tensor]:
+        """Plan one action per env from the previous plan's mean, shifted (Alg. 2 lines 2–15).
 
-    def warm_start(self, horizon: int) -> th.Tensor:
-        """The previous plan's mean shifted by one step (its last step padded with 0), cut to ``horizon``."""
-        shifted = th.zeros_like(self.prev_mean)
-        shifted[:, :-1] = self.prev_mean[:, 1:]
-        return shifted[:, :horizon]
-
-    @th.inference_mode()
-    def plan(self, model: TOLD, obs: th.Tensor, step: int, deterministic: bool = False) -> th.Tensor:
-        """Plan one action per env (Alg. 2 lines 2–15).
-
-        :param model: the TOLD model.
         :param obs: ``(E, obs_dim)`` observations.
+        :param prev_mean: ``(E, H_max, A)`` the previous plan's mean (zeros where an episode starts).
         :param step: training step, for the horizon and ``ε`` schedules.
         :param deterministic: return ``μ_J``'s first action instead of a sample from ``N(μ_J, σ_J²)``.
-        :return: ``(E, A)`` actions in [-1, 1].
+        :param generator: where the noise comes from (torch's global RNG if None).
+        :return: ``(E, A)`` actions in [-1, 1] and the new ``(E, H_max, A)`` mean, the next call's ``prev_mean``.
         """
-        cfg, n_envs, adim = self.config, obs.shape[0], self.action_dim
-        horizon, min_std = cfg.horizon_at(step), cfg.min_std_at(step)
-        n, p = cfg.num_samples, cfg.num_policy_samples
-        if n_envs != self.prev_mean.shape[0]:  # a new batch size (e.g. predict on one obs): no warm start
-            self.prev_mean = th.zeros(n_envs, cfg.horizon, adim, device=self.device)
-        model = self._planning_model(model)
-        z = model.encode(obs.to(self.dtype))
-        pi_actions, pi_returns = policy_rollout(model, z.repeat_interleave(p, 0), horizon, cfg.gamma, cfg.policy_std)
-        pi_actions = pi_actions.view(horizon, n_envs, p, adim).permute(1, 2, 0, 3).float()
-        pi_returns = pi_returns.view(n_envs, p)
-        z_samples = z.repeat_interleave(n, 0)
-        block_rows = math.ceil(len(z_samples) / math.ceil(len(z_samples) / cfg.max_rows))  # equal blocks, no small tail
-        mean = self.warm_start(horizon)
-        std = th.full_like(mean, cfg.max_std)
-        for _ in range(cfg.iterations):
-            noise = th.randn(n_envs, n, horizon, adim, device=z.device)
-            samples = (mean.unsqueeze(1) + std.unsqueeze(1) * noise).clamp(-1.0, 1.0)
-            flat = samples.permute(2, 0, 1, 3).reshape(horizon, n_envs * n, adim).to(self.dtype)
-            returns = blocked_returns(model, z_samples, flat, cfg, block_rows).view(n_envs, n)
-            all_actions, all_returns = th.cat([samples, pi_actions], 1), th.cat([returns, pi_returns], 1)
-            elite_returns, elite_idx = all_returns.topk(cfg.num_elites, dim=1)
-            elites = all_actions.gather(1, elite_idx[:, :, None, None].expand(-1, -1, horizon, adim))
-            new_mean, new_std = refit_gaussian(elites, elite_returns, cfg.temperature)
-            mean = cfg.momentum * mean + (1.0 - cfg.momentum) * new_mean
-            std = new_std.clamp(min_std, cfg.max_std)  # eq. 11: σ ≥ ε
-        self.prev_mean.zero_()
-        self.prev_mean[:, :horizon] = mean
-        action = mean[:, 0] if deterministic else mean[:, 0] + std[:, 0] * th.randn(n_envs, adim, device=z.device)
-        return action.clamp(-1.0, 1.0)
+        cfg, n_envs = self.config, obs.shape[0]
+        if prev_mean.shape != (n_envs, cfg.horizon, self.action_dim):
+            raise ValueError(
+                f"The planner's state must have shape {(n_envs, cfg.horizon, self.action_dim)} (n_envs, horizon, "
+                f"action dims) for {n_envs} observations, got {tuple(prev_mean.shape)}."
+            )
+        horizon = cfg.horizon_at(step)
+        noise = draw_noise(cfg, n_envs, horizon, self.action_dim, deterministic, generator, self.device)
+        min_std = th.tensor(cfg.min_std_at(step), device=self.device)
+        warm = warm_start(prev_mean.to(self.device), horizon)
+        action, mean = self._mppi(self._planning_model(model), obs.to(self.device), warm, noise, min_std, cfg)
+        new_mean = th.zeros_like(prev_mean, device=self.device)
+        new_mean[:, :horizon] = mean
+        return action.clone(), new_mean

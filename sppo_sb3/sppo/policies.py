@@ -95,16 +95,28 @@ class TOLD(nn.Module):
         return self.encoder(obs)
 
     def next(self, z: th.Tensor, action: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
-        """Latent dynamics and reward: ``(d(z, a), R(z, a))``; the reward has shape ``(B, 1)``."""
+        """Latent dynamics and reward: ``(d(z, a), R(z, a))``; the reward has shape ``(..., 1)``."""
         za = th.cat([z, action], dim=-1)
         return self.dynamics(za), self.reward(za)
 
-    def policy(self, z: th.Tensor, std: float = 0.0) -> th.Tensor:
-        """``π(z)`` squashed to [-1, 1]; with ``std > 0`` adds clipped Gaussian exploration noise (TD-MPC)."""
+    def next_latent(self, z: th.Tensor, action: th.Tensor) -> th.Tensor:
+        """Latent dynamics ``d(z, a)`` alone."""
+        return self.dynamics(th.cat([z, action], dim=-1))
+
+    def predicted_reward(self, z: th.Tensor, action: th.Tensor) -> th.Tensor:
+        """Reward ``R(z, a)`` of shape ``(..., 1)``."""
+        return self.reward(th.cat([z, action], dim=-1))
+
+    def policy(self, z: th.Tensor, std: float = 0.0, noise: th.Tensor | None = None) -> th.Tensor:
+        """``π(z)`` squashed to [-1, 1]; with ``std > 0`` adds clipped Gaussian exploration noise (TD-MPC).
+
+        :param noise: standard normal draws of the action's shape; drawn here when not given. Passing them makes the
+            result a pure function of the inputs (what compiled and eager code must agree on).
+        """
         action = th.tanh(self.pi(z))
         if std > 0:
-            noise = (th.randn_like(action) * std).clamp(-0.3, 0.3)
-            action = (action + noise).clamp(-1.0, 1.0)
+            noise = th.randn_like(action) if noise is None else noise
+            action = (action + (noise * std).clamp(-0.3, 0.3)).clamp(-1.0, 1.0)
         return action
 
     def q(self, z: th.Tensor, action: th.Tensor) -> tuple[th.Tensor, th.Tensor]:
@@ -186,7 +198,8 @@ class TOLDPolicy(BasePolicy):
         return self.model.policy(self.model.encode(observation.float()))
 
     def set_training_mode(self, mode: bool) -> None:
-        self.model.train(mode)
+        """Only the flag: no TOLD layer (no dropout, no batch norm) behaves differently in training, and walking all
+        modules on every env step (SB3 switches modes around each update) costs more than the plan itself."""
         self.training = mode
 
 

@@ -17,17 +17,19 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, RolloutReturn, Schedule, TrainFreq
-from stable_baselines3.common.utils import polyak_update, should_collect_more_steps
+from stable_baselines3.common.utils import should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv
 
+from sppo_sb3.common.compile import CompiledFunction, CompileMode, check_compile_mode, should_compile
 from sppo_sb3.common.costs import costs_from_infos
 from sppo_sb3.common.safety import INTERVENED_KEY, SafetyMetrics
 from sppo_sb3.shield import ShieldingRule, resolve_shielding_rule
 from sppo_sb3.shield.wrapper import PROPOSED_ACTION_KEY
 from sppo_sb3.sppo.buffers import AbsorbingMode, ShieldedReplayBuffer
+from sppo_sb3.sppo.optim import init_optimizer_state, supports_tensor_step
 from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
 from sppo_sb3.sppo.policies import TOLDPolicy
-from sppo_sb3.sppo.topo import TOPOConfig, topo_update
+from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, topo_update
 
 SelfSPPO = TypeVar("SelfSPPO", bound="SPPO")
 
@@ -81,6 +83,11 @@ class SPPO(OffPolicyAlgorithm):
     :param topo_kwargs: :class:`TOPOConfig` overrides.
     :param plan_at_predict: ``predict`` plans with MPPI (``True``) or acts with the policy prior alone (fast).
     :param shield_at_predict: ``predict`` passes its actions through the shield.
+    :param compile: compile the planner (all ``J`` iterations of Alg. 2) and the whole TOPO update (Alg. 3) with
+        ``torch.compile`` (Inductor on CPU, CUDA graphs on CUDA): ``True``, ``False`` or ``"auto"`` (compile where
+        ``torch.compile`` is available; see :func:`~sppo_sb3.common.compile.should_compile`). Each planning horizon
+        of the schedule and each number of envs is compiled once, on first use. The eager code is the reference
+        and is used, after one warning, if compiling fails.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"TOLDPolicy": TOLDPolicy, "MlpPolicy": TOLDPolicy}
@@ -110,6 +117,7 @@ class SPPO(OffPolicyAlgorithm):
         topo_kwargs: dict[str, Any] | None = None,
         plan_at_predict: bool = True,
         shield_at_predict: bool = True,
+        compile: CompileMode = "auto",
         replay_buffer_kwargs: dict[str, Any] | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
@@ -150,6 +158,8 @@ class SPPO(OffPolicyAlgorithm):
         self.topo_config = TOPOConfig(**{"gamma": gamma, **(topo_kwargs or {})})
         self.plan_at_predict = plan_at_predict
         self.shield_at_predict = shield_at_predict
+        check_compile_mode(compile)
+        self.compile = compile
         self.shield_rule: ShieldingRule | None = None
         self.safety_metrics: SafetyMetrics | None = None
         if _init_setup_model:
@@ -171,13 +181,29 @@ class SPPO(OffPolicyAlgorithm):
         self._convert_train_freq()
         if self.shield_rule is None:
             self.shield_rule = resolve_shielding_rule(self.shield, self.env, required=False)
-        self.planner = MPPIPlanner(self.planner_config, self.n_envs, self.action_space.shape[0], self.device)
-        warm_start = getattr(self, "planner_warm_start", None)
-        if warm_start is not None and warm_start.shape == tuple(self.planner.prev_mean.shape):
-            self.planner.prev_mean.copy_(th.as_tensor(warm_start))
+        self._setup_compiled()
         if self.safety_metrics is None:
             self.safety_metrics = SafetyMetrics(self.n_envs, window=self._stats_window_size)
         self.safety_metrics.resize(self.n_envs)
+
+    def _setup_compiled(self) -> None:
+        """The planner, the TOPO update (compiled or eager, see ``compile``) and training's warm start."""
+        compile = should_compile(self.compile, self.device)
+        if compile and not (supports_tensor_step(self.policy.optimizer) and supports_tensor_step(self.policy.pi_optimizer)):
+            if self.compile is True:
+                raise ValueError("compile=True needs TOLDPolicy's default optimizer (Adam); pass compile=False for others.")
+            compile = False
+        self.planner = MPPIPlanner(self.planner_config, self.action_space.shape[0], self.device, compile=compile)
+        self._topo_update = CompiledFunction(topo_update, compile, self.device, "TOPO update")
+        self._plan_mean = self._restore_warm_start()
+        self._train_stats = th.zeros(len(TOPO_STATS), device=self.device)
+        self._train_stats_count = 0
+
+    def _restore_warm_start(self) -> th.Tensor:
+        """Training's warm start as saved with the model, or a cold start if there is none or ``n_envs`` changed."""
+        cold = self.planner.initial_mean(self.n_envs)
+        saved = getattr(self, "planner_warm_start", None)
+        return th.as_tensor(saved, device=self.device) if saved is not None and saved.shape == cold.shape else cold
 
     def _setup_replay_buffer(self) -> None:
         """Allocate ``B``/``B̃`` on the first ``learn``, so that loading a model to deploy it allocates nothing."""
@@ -205,7 +231,9 @@ class SPPO(OffPolicyAlgorithm):
         assert self.safety_metrics is not None
         if reset_num_timesteps or self._last_obs is None:  # SB3 resets the envs: running episodes start over
             self.safety_metrics.restart_episodes()
-            self.planner.reset()
+            self._plan_mean = self.planner.initial_mean(self.n_envs)
+        elif self._plan_mean.shape[0] != self.n_envs:  # set_env with another number of envs
+            self._plan_mean = self.planner.initial_mean(self.n_envs)
         return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
 
     # ------------------------------------------------------------------ exploration phase (Alg. 1 lines 3–9)
@@ -214,7 +242,8 @@ class SPPO(OffPolicyAlgorithm):
         if self.num_timesteps < learning_starts:
             return np.random.uniform(-1.0, 1.0, size=(len(obs), *self.action_space.shape)).astype(np.float32)
         obs_tensor = th.as_tensor(obs, dtype=th.float32, device=self.device)
-        return self.planner.plan(self.policy.model, obs_tensor, self.num_timesteps, deterministic=False).cpu().numpy()
+        actions, self._plan_mean = self.planner.plan(self.policy.model, obs_tensor, self._plan_mean, self.num_timesteps)
+        return actions.cpu().numpy()
 
     def _shield(self, raw_obs: np.ndarray, env_actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Eq. 12 on every env at once: the executed actions (env units) and where the shield intervened."""
@@ -260,7 +289,7 @@ class SPPO(OffPolicyAlgorithm):
             self._update_info_buffer(infos, dones)
             self._store_transition(replay_buffer, self.policy.scale_action(actions), new_obs, rewards, dones, infos)
             self._update_current_progress_remaining(self.num_timesteps, self._total_timesteps)
-            self.planner.reset(th.as_tensor(dones))  # a new episode starts without a warm start
+            self._plan_mean[th.as_tensor(dones, device=self.device)] = 0.0  # a new episode starts without a warm start
             for done in dones:
                 if done:
                     num_collected_episodes += 1
@@ -272,30 +301,44 @@ class SPPO(OffPolicyAlgorithm):
 
     # ------------------------------------------------------------------ training phase (Alg. 1 lines 10–13)
     def train(self, gradient_steps: int, batch_size: int) -> None:
-        """TOPO on sequences of ``B̃`` (Alg. 3), EMA target every ``target_update_interval`` updates."""
-        self.policy.set_training_mode(True)
-        self._update_learning_rate([self.policy.optimizer, self.policy.pi_optimizer])
-        model, target = self.policy.model, self.policy.model_target
-        logs: dict[str, list[float]] = {}
+        """TOPO on sequences of ``B̃`` (Alg. 3), EMA target every ``target_update_interval`` updates.
+
+        Losses stay on the device and are summed; :meth:`dump_logs` reads them once per log interval.
+        """
+        policy = self.policy
+        policy.set_training_mode(True)
+        self._update_learning_rate([policy.optimizer, policy.pi_optimizer])
+        init_optimizer_state(policy.optimizer)
+        init_optimizer_state(policy.pi_optimizer)
+        lr = th.tensor(policy.optimizer.param_groups[0]["lr"], device=self.device)
         for _ in range(gradient_steps):
             batch = self.replay_buffer.sample_sequences(batch_size, self.horizon, env=self._vec_normalize_env)
-            losses = topo_update(model, target, self.policy.optimizer, self.policy.pi_optimizer, batch, self.topo_config)
-            for key, value in losses.items():
-                logs.setdefault(key, []).append(value)
+            noise = th.randn(batch.actions.shape, device=self.device)
             self._n_updates += 1
-            if self._n_updates % self.target_update_interval == 0:
-                polyak_update(model.parameters(), target.parameters(), self.tau)
-        self.policy.set_training_mode(False)
+            ema = th.tensor(self.tau if self._n_updates % self.target_update_interval == 0 else 0.0, device=self.device)
+            models, optimizers = (policy.model, policy.model_target), (policy.optimizer, policy.pi_optimizer)
+            stats = self._topo_update(*models, *optimizers, batch, noise, lr, ema, self.topo_config)
+            self._train_stats += stats
+            self._train_stats_count += 1
+        policy.set_training_mode(False)
         self.planner.mark_stale()
+
+    def _record_train_stats(self) -> None:
+        """Means of the TOPO statistics since the last dump (one device-to-host copy per log interval)."""
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/horizon", self.planner_config.horizon_at(self.num_timesteps))
         self.logger.record("train/min_std", self.planner_config.min_std_at(self.num_timesteps))
-        for key, values in logs.items():
-            self.logger.record(f"train/{key}", float(np.mean(values)))
+        if self._train_stats_count:
+            means = (self._train_stats / self._train_stats_count).tolist()
+            for key, value in zip(TOPO_STATS, means):
+                self.logger.record(f"train/{key}", value)
+            self._train_stats.zero_()
+            self._train_stats_count = 0
 
     def dump_logs(self) -> None:
         assert self.safety_metrics is not None
         self.safety_metrics.record(self.logger)
+        self._record_train_stats()
         super().dump_logs()
 
     # ------------------------------------------------------------------ deployment
@@ -308,20 +351,29 @@ class SPPO(OffPolicyAlgorithm):
     ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None]:
         """Plan with MPPI (or the policy prior if ``plan_at_predict`` is False), then shield.
 
-        ``episode_start`` resets the planner's warm start of the envs that begin an episode. The observation is
-        one the env returns (normalised under ``VecNormalize``; the shield reads its unnormalised version).
-        MPPI samples with torch's RNG: seed it (``torch.manual_seed``) for repeatable plans.
+        The planner's warm start is a recurrent state, as in SB3's ``RecurrentPPO``: pass the returned ``state`` to
+        the next call (``evaluate_policy`` and ``EvalCallback`` do) and ``episode_start`` where an episode begins; with
+        ``state=None`` the plan starts cold. Training keeps its own warm start, which ``predict`` never touches. A
+        deterministic plan is a pure function of ``(observation, state)``: its sampling noise is drawn from a
+        generator seeded the same way on every call. The observation is one the env returns (normalised under
+        ``VecNormalize``; the shield reads its unnormalised version).
+
+        :return: the actions and the new state: ``(mean,)``, the ``(n_envs, horizon, action dims)`` plan mean, or None
+            when ``plan_at_predict`` is False.
         """
         obs = np.asarray(observation, dtype=np.float32)
         vectorized = obs.ndim == 2
         obs = obs.reshape(-1, *self.observation_space.shape)
-        if episode_start is not None:
-            self.planner.reset(th.as_tensor(np.asarray(episode_start, dtype=bool).reshape(-1)))
         raw_obs = self._vec_normalize_env.unnormalize_obs(obs) if self._vec_normalize_env is not None else obs
         assert isinstance(raw_obs, np.ndarray)
         obs_tensor = th.as_tensor(obs, dtype=th.float32, device=self.device)
+        new_state: tuple[np.ndarray, ...] | None = None
         if self.plan_at_predict:
-            scaled = self.planner.plan(self.policy.model, obs_tensor, self.num_timesteps, deterministic=deterministic)
+            prev_mean = self._warm_start_from_state(state, episode_start, len(obs))
+            generator = th.Generator(device=self.device).manual_seed(0) if deterministic else None
+            model, step = self.policy.model, self.num_timesteps
+            scaled, mean = self.planner.plan(model, obs_tensor, prev_mean, step, deterministic, generator)
+            new_state = (mean.cpu().numpy(),)
         else:
             with th.no_grad():
                 scaled = self.policy._predict(obs_tensor)
@@ -329,7 +381,20 @@ class SPPO(OffPolicyAlgorithm):
         if self.shield_at_predict:
             actions, _ = self._shield(raw_obs, actions)
         actions = np.clip(actions, self.action_space.low, self.action_space.high)
-        return (actions if vectorized else actions[0]), None
+        return (actions if vectorized else actions[0]), new_state
+
+    def _warm_start_from_state(
+        self, state: tuple[np.ndarray, ...] | None, episode_start: np.ndarray | None, n_envs: int
+    ) -> th.Tensor:
+        """``predict``'s state as the planner's previous mean, zeroed where an episode starts."""
+        if state is None:
+            return self.planner.initial_mean(n_envs)
+        prev_mean = th.as_tensor(np.asarray(state[0], dtype=np.float32), device=self.device).clone()
+        if episode_start is not None:
+            starts = th.as_tensor(np.asarray(episode_start, dtype=bool).reshape(-1), device=self.device)
+            if len(starts) == len(prev_mean):
+                prev_mean[starts] = 0.0
+        return prev_mean
 
     def learn(
         self: SelfSPPO,
@@ -344,14 +409,14 @@ class SPPO(OffPolicyAlgorithm):
 
     # ------------------------------------------------------------------ persistence
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "planner"]
+        return [*super()._excluded_save_params(), "planner", "_topo_update", "_plan_mean", "_train_stats"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         return ["policy", "policy.optimizer", "policy.pi_optimizer"], []
 
     def save(self, path: Any, exclude: Any = None, include: Any = None) -> None:
-        """Save as SB3 does, with the planner's warm start, so a loaded model plans exactly as the saved one."""
-        self.planner_warm_start = self.planner.prev_mean.cpu().numpy()
+        """Save as SB3 does, with training's warm start, so that a resumed run plans exactly as the saved one would."""
+        self.planner_warm_start = self._plan_mean.cpu().numpy()
         super().save(path, exclude, include)
 
 

@@ -1,7 +1,10 @@
 """Task-oriented parameter optimisation, TOPO (eqs. 13–17; Alg. 3) on sequences of ``B̃``.
 
 Only the first state of a sequence is encoded; the rest is rolled in latent space by ``d``. Masked steps (past an
-episode end) contribute nothing.
+episode end) contribute nothing. Only the latent roll is sequential: rewards, values and TD targets of all ``H`` steps
+are computed in one batched call each. The whole update — both losses, both gradients, clipping, both Adam steps and
+the EMA target — is tensor code without host syncs, so that :class:`~sppo_sb3.common.compile.CompiledFunction` can
+compile it into one graph; its eager run is the reference.
 """
 
 from __future__ import annotations
@@ -9,9 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch as th
-from torch import nn
 
 from sppo_sb3.sppo.buffers import SequenceSamples
+from sppo_sb3.sppo.optim import apply_gradients, clip_by_total_norm, ema_update
 from sppo_sb3.sppo.policies import TOLD
 
 
@@ -37,6 +40,10 @@ class TOPOConfig:
     policy_std: float = 0.05
 
 
+TOPO_STATS = ("loss", "pi_loss", "grad_norm", "reward", "value", "consistency")
+"""Names of the entries of the statistics vector that :func:`topo_update` returns."""
+
+
 def reward_loss(predicted: th.Tensor, reward: th.Tensor) -> th.Tensor:
     """``L_r = ‖R(z_i, a_i) - r_i‖²`` (eq. 15), per sample."""
     return (predicted.squeeze(-1) - reward) ** 2
@@ -44,11 +51,14 @@ def reward_loss(predicted: th.Tensor, reward: th.Tensor) -> th.Tensor:
 
 @th.no_grad()
 def td_target(
-    model: TOLD, target: TOLD, next_obs: th.Tensor, reward: th.Tensor, terminal: th.Tensor, cfg: TOPOConfig
+    model: TOLD, target: TOLD, next_obs: th.Tensor, reward: th.Tensor, terminal: th.Tensor, noise: th.Tensor, cfg: TOPOConfig
 ) -> th.Tensor:
-    """``r + γ (1 - done) min Q⁻(z', π(z'))`` with ``z' = h(s')`` — the target of eq. 16 (twin-Q, TD-MPC)."""
+    """``r + γ (1 - done) min Q⁻(z', π(z'))`` with ``z' = h(s')`` — the target of eq. 16 (twin-Q, TD-MPC).
+
+    :param noise: standard normal draws for the exploration noise on ``π(z')``, shaped like the actions.
+    """
     next_z = model.encode(next_obs)
-    next_q = target.min_q(next_z, model.policy(next_z, cfg.policy_std)).squeeze(-1)
+    next_q = target.min_q(next_z, model.policy(next_z, cfg.policy_std, noise)).squeeze(-1)
     return reward + cfg.gamma * (1.0 - terminal) * next_q
 
 
@@ -62,51 +72,46 @@ def consistency_loss(predicted_z: th.Tensor, target_z: th.Tensor) -> th.Tensor:
     return ((predicted_z - target_z) ** 2).mean(dim=-1)
 
 
-def model_loss(model: TOLD, target: TOLD, batch: SequenceSamples, cfg: TOPOConfig) -> tuple[th.Tensor, list[th.Tensor], dict]:
+def rho_weights(cfg: TOPOConfig, horizon: int, device: th.device) -> th.Tensor:
+    """``λ^i`` for ``i < H`` (eq. 13)."""
+    return cfg.rho ** th.arange(horizon, device=device, dtype=th.float32)
+
+
+def roll_latents(model: TOLD, obs: th.Tensor, actions: th.Tensor) -> th.Tensor:
+    """``z_0 = h(s_t)``, ``z_(i+1) = d(z_i, a_i)``: the ``(H + 1, B, latent)`` latents of a sequence."""
+    latents = [model.encode(obs)]
+    for action in actions:
+        latents.append(model.next_latent(latents[-1], action))
+    return th.stack(latents)
+
+
+def model_loss(model: TOLD, target: TOLD, batch: SequenceSamples, noise: th.Tensor, cfg: TOPOConfig) -> tuple[th.Tensor, ...]:
     """``J = Σ_i λ^i (c1 L_r + c2 L_v + c3 L_c)`` (eqs. 13, 14) over a batch of sequences, scaled by ``1/H``.
 
-    :return: the loss, the rolled latents ``z_0 .. z_(H-1)`` (detached, for the policy loss) and the loss terms.
+    :param noise: ``(H, B, A)`` standard normal draws for the TD targets' policy noise.
+    :return: the loss, the rolled latents ``z_0 .. z_(H-1)`` (detached, for the policy loss) and the weighted
+        reward, value and consistency terms.
     """
     horizon = batch.actions.shape[0]
-    z = model.encode(batch.observations)
-    latents, terms = [], {"reward": 0.0, "value": 0.0, "consistency": 0.0}
-    total = th.zeros((), device=z.device)
-    for i in range(horizon):
-        latents.append(z.detach())
-        q1, q2 = model.q(z, batch.actions[i])
-        z, predicted_reward = model.next(z, batch.actions[i])
-        with th.no_grad():
-            target_z = target.encode(batch.next_observations[i])
-        weight, mask = cfg.rho**i, batch.mask[i]
-        target_q = td_target(model, target, batch.next_observations[i], batch.rewards[i], batch.terminals[i], cfg)
-        step = {
-            "reward": (reward_loss(predicted_reward, batch.rewards[i]) * mask).mean(),
-            "value": (value_loss(q1, q2, target_q) * mask).mean(),
-            "consistency": (consistency_loss(z, target_z) * batch.consistency_mask[i]).mean(),
-        }
-        total = total + weight * (
-            cfg.reward_coef * step["reward"] + cfg.value_coef * step["value"] + cfg.consistency_coef * step["consistency"]
-        )
-        for key, value in step.items():
-            terms[key] += weight * value.item()
-    return total / horizon, latents, terms
+    with th.no_grad():
+        target_z = target.encode(batch.next_observations)
+        target_q = td_target(model, target, batch.next_observations, batch.rewards, batch.terminals, noise, cfg)
+    latents = roll_latents(model, batch.observations, batch.actions)
+    q1, q2 = model.q(latents[:-1], batch.actions)
+    predicted_reward = model.predicted_reward(latents[:-1], batch.actions)
+    weights = rho_weights(cfg, horizon, latents.device)
+    reward = (weights * (reward_loss(predicted_reward, batch.rewards) * batch.mask).mean(dim=1)).sum()
+    value = (weights * (value_loss(q1, q2, target_q) * batch.mask).mean(dim=1)).sum()
+    consistency = (weights * (consistency_loss(latents[1:], target_z) * batch.consistency_mask).mean(dim=1)).sum()
+    total = cfg.reward_coef * reward + cfg.value_coef * value + cfg.consistency_coef * consistency
+    return total / horizon, latents[:-1].detach(), reward, value, consistency
 
 
-def policy_loss(model: TOLD, latents: list[th.Tensor], mask: th.Tensor, cfg: TOPOConfig) -> th.Tensor:
-    """``-Σ_i λ^i min Q(z_i, π(z_i))`` over the rolled (detached) latents — TD-MPC's policy objective."""
-    total = th.zeros((), device=mask.device)
-    for i, z in enumerate(latents):
-        total = total - cfg.rho**i * (model.min_q(z, model.policy(z)).squeeze(-1) * mask[i]).mean()
-    return total / len(latents)
-
-
-def clipped_step(optimizer: th.optim.Optimizer, loss: th.Tensor, params: list[nn.Parameter], max_norm: float) -> float:
-    """Backpropagate, clip the gradient norm, step; returns the pre-clip gradient norm."""
-    optimizer.zero_grad(set_to_none=True)
-    loss.backward()
-    norm = nn.utils.clip_grad_norm_(params, max_norm)
-    optimizer.step()
-    return float(norm)
+def policy_loss(model: TOLD, latents: th.Tensor, mask: th.Tensor, cfg: TOPOConfig) -> th.Tensor:
+    """``-Σ_i λ^i min Q(z_i, π(z_i))`` over the rolled (detached) ``(H, B, latent)`` latents — TD-MPC's policy objective."""
+    values = model.min_q(latents, model.policy(latents)).squeeze(-1)
+    weights = rho_weights(cfg, latents.shape[0], latents.device)
+    return -(weights * (values * mask).mean(dim=1)).sum() / latents.shape[0]
 
 
 def topo_update(
@@ -115,17 +120,28 @@ def topo_update(
     optimizer: th.optim.Optimizer,
     pi_optimizer: th.optim.Optimizer,
     batch: SequenceSamples,
+    noise: th.Tensor,
+    lr: th.Tensor,
+    ema_weight: th.Tensor,
     cfg: TOPOConfig,
-) -> dict[str, float]:
-    """One TOPO update (Alg. 3 lines 3–12): model step on ``J``, then a policy step with ``Q`` frozen."""
-    loss, latents, terms = model_loss(model, target, batch, cfg)
+) -> th.Tensor:
+    """One TOPO update (Alg. 3 lines 3–13): a model step on ``J``, a policy step on the updated ``Q``, the EMA target.
+
+    The policy's gradient is taken with respect to ``π``'s parameters alone, so ``Q`` stays fixed in that step.
+    Adam's state must exist before the call (:func:`~sppo_sb3.sppo.optim.init_optimizer_state`).
+
+    :param noise: ``(H, B, A)`` standard normal draws for the TD targets' policy noise.
+    :param lr: learning rate of both optimisers (0-d tensor).
+    :param ema_weight: ``τ`` on the updates that refresh the target network, else 0 (0-d tensor).
+    :return: the statistics named by :data:`TOPO_STATS`, as one detached tensor (read it when logging, not per step).
+    """
     model_params = [p for group in optimizer.param_groups for p in group["params"]]
-    grad_norm = clipped_step(optimizer, loss, model_params, cfg.grad_clip)
-    q_params = [*model.q1.parameters(), *model.q2.parameters()]
-    for p in q_params:
-        p.requires_grad_(False)
+    pi_params = [p for group in pi_optimizer.param_groups for p in group["params"]]
+    loss, latents, reward, value, consistency = model_loss(model, target, batch, noise, cfg)
+    grads, grad_norm = clip_by_total_norm(th.autograd.grad(loss, model_params), cfg.grad_clip)
+    apply_gradients(optimizer, grads, lr)
     pi_loss = policy_loss(model, latents, batch.mask, cfg)
-    clipped_step(pi_optimizer, pi_loss, list(model.pi.parameters()), cfg.grad_clip)
-    for p in q_params:
-        p.requires_grad_(True)
-    return {"loss": loss.item(), "pi_loss": pi_loss.item(), "grad_norm": grad_norm, **terms}
+    pi_grads, _ = clip_by_total_norm(th.autograd.grad(pi_loss, pi_params), cfg.grad_clip)
+    apply_gradients(pi_optimizer, pi_grads, lr)
+    ema_update(model, target, ema_weight)
+    return th.stack([loss, pi_loss, grad_norm, reward, value, consistency]).detach()
