@@ -149,7 +149,8 @@ def run(device: th.device, n_envs_list: list[int], repeats: int, sizes: list[str
     results = []
     peak32, peak16 = matmul_peak(device, th.float32), matmul_peak(device, th.bfloat16)
     print(f"\n[{device}] matmul peak: fp32 {peak32:.1f} GFLOP/s, bf16 {peak16:.1f} GFLOP/s")
-    print(f"{'size':8} {'n_envs':>6} {'planner':>20} {'ms/action':>10} {'GFLOP/s':>8} {'% peak':>7} {'% floor':>8} {'speed-up':>9}")
+    columns = ("ms/action", "GFLOP/s", "% peak", "% floor", "speed-up")
+    print(f"{'size':8} {'n_envs':>6} {'planner':>20} " + " ".join(f"{c:>9}" for c in columns))
     for size in sizes:
         spec = SIZES[size]
         cfg = replace(spec["config"], horizon_warmup=0, min_std_decay=0)  # full horizon, final ε
@@ -179,8 +180,8 @@ def run(device: th.device, n_envs_list: list[int], repeats: int, sizes: list[str
                            gflops=gflops, pct_peak=100 * gflops / peak, pct_floor=100 * floor_s / seconds,
                            speedup=ref_s / seconds)  # fmt: skip
                 results.append(row)
-                print(f"{size:8} {n_envs:6d} {name:>20} {row['ms_per_action']:10.2f} {gflops:8.1f} {row['pct_peak']:6.0f}% "
-                      f"{row['pct_floor']:7.0f}% {row['speedup']:8.2f}x")  # fmt: skip
+                print(f"{size:8} {n_envs:6d} {name:>20} {row['ms_per_action']:9.2f} {gflops:9.1f} {row['pct_peak']:8.0f}% "
+                      f"{row['pct_floor']:8.0f}% {row['speedup']:8.2f}x")  # fmt: skip
     return results
 
 
