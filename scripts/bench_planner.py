@@ -190,6 +190,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="n_envs 1 and 8, one repeat")
     parser.add_argument("--n-envs", type=int, nargs="+", default=None)
     parser.add_argument("--sizes", nargs="+", default=list(SIZES), choices=list(SIZES))
+    parser.add_argument("--devices", nargs="+", default=None, help="e.g. cuda (default: cpu, and cuda when present)")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: all cores)")
     parser.add_argument("--json", type=str, default=None, help="also write the rows to this JSON file")
     args = parser.parse_args()
@@ -197,7 +198,8 @@ def main() -> None:
         th.set_num_threads(args.threads)
     n_envs_list = args.n_envs or ([1, 8] if args.quick else [1, 8, 64])
     repeats = 1 if args.quick else 3
-    devices = [th.device("cpu")] + ([th.device("cuda")] if th.cuda.is_available() else [])
+    devices = [th.device(d) for d in args.devices] if args.devices else [th.device("cpu")]
+    devices += [] if args.devices or not th.cuda.is_available() else [th.device("cuda")]
     print(f"torch {th.__version__}, {th.get_num_threads()} CPU threads")
     results = [row for device in devices for row in run(device, n_envs_list, repeats, args.sizes)]
     if args.json:

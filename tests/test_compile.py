@@ -169,3 +169,45 @@ def test_compiled_sppo_learns_saves_loads_resumes_and_changes_env(tmp_path):
     assert loaded._plan_mean.shape[0] == 2
     obs = np.zeros((2, 4), dtype=np.float32)
     np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], loaded.predict(obs, deterministic=True)[0])
+
+
+CUDA = pytest.mark.skipif(not th.cuda.is_available(), reason="needs a CUDA device")
+
+
+@CUDA
+@pytest.mark.cuda
+def test_compiled_topo_update_equals_eager_on_cuda():
+    """CUDA graphs (mode="reduce-overhead") against the eager update, on the GPU."""
+    cuda = th.device("cuda")
+    eager_policy = make_policy().to(cuda)
+    compiled_policy = copy.deepcopy(eager_policy)
+    for policy in (eager_policy, compiled_policy):
+        init_optimizer_state(policy.optimizer)
+        init_optimizer_state(policy.pi_optimizer)
+    compiled = CompiledFunction(topo_update, True, cuda, "TOPO update")
+    batch, cfg = random_batch(), TOPOConfig()
+    batch = type(batch)(*(x.to(cuda) for x in batch))
+    noise = th.randn(batch.actions.shape, device=cuda)
+    for i in range(4):
+        ema = th.tensor(0.01 if i % 2 else 0.0, device=cuda)
+        lr = th.tensor(1e-3, device=cuda)
+        models = lambda p: (p.model, p.model_target, p.optimizer, p.pi_optimizer)  # noqa: E731
+        eager = topo_update(*models(eager_policy), batch, noise, lr, ema, cfg)
+        comp = compiled(*models(compiled_policy), batch, noise, lr, ema, cfg).clone()
+        th.testing.assert_close(comp, eager, rtol=1e-4, atol=1e-5)
+    assert compiled.compiled
+
+
+@CUDA
+@pytest.mark.cuda
+def test_a_model_trained_and_saved_on_cuda_loads_and_predicts_on_cpu(tmp_path):
+    model = SPPO("TOLDPolicy", "SafePointCircle-v0", **{**TINY, "compile": "auto"}, device="cuda").learn(80)
+    model.save(tmp_path / "sppo")
+    obs = np.array([[0.2, -0.3, 0.5, 0.1]], dtype=np.float32)
+    on_gpu, _ = model.predict(obs, deterministic=True)
+    loaded = SPPO.load(tmp_path / "sppo", device="cpu")
+    assert all(p.device.type == "cpu" for p in loaded.policy.parameters())
+    np.testing.assert_allclose(loaded.predict(obs, deterministic=True)[0], on_gpu, atol=1e-4)
+    loaded.set_env(model.get_env())
+    loaded.learn(40, reset_num_timesteps=False)
+    assert loaded.num_timesteps == 120

@@ -9,13 +9,18 @@ wrapper rather than from Python. Shapes are static (``dynamic=False``): every di
 
 from __future__ import annotations
 
+import time
 import warnings
 from collections.abc import Callable
 from typing import Generic, Literal, ParamSpec, TypeVar
 
 import torch as th
+from torch._dynamo.utils import counters
 
 CompileMode = bool | Literal["auto"]
+RECOMPILE_LIMIT = 64
+"""Graphs kept per function: one per planning horizon of the schedule and per number of envs planned for (training's
+and each evaluation VecEnv's); PyTorch's default of 8 would send a long run with evaluation back to eager."""
 P = ParamSpec("P")
 R = TypeVar("R")
 
@@ -48,10 +53,13 @@ class CompiledFunction(Generic[P, R]):
     :param enabled: compile it (else run it eagerly).
     :param device: the device it runs on: CUDA uses CUDA graphs (``mode="reduce-overhead"``).
     :param name: what to call it in the warning.
+
+    ``compilations`` and ``compile_seconds`` count the calls that compiled a new graph and the wall time they took.
     """
 
     def __init__(self, fn: Callable[P, R], enabled: bool, device: th.device, name: str) -> None:
         self.fn, self.name = fn, name
+        self.compilations, self.compile_seconds = 0, 0.0
         self._compiled: Callable[P, R] | None = None
         if enabled and device.type == "cuda":
             self._compiled = th.compile(fn, mode="reduce-overhead", dynamic=False)
@@ -66,8 +74,14 @@ class CompiledFunction(Generic[P, R]):
     def __call__(self, *args: P.args, **kwargs: P.kwargs) -> R:
         if self._compiled is not None:
             try:
-                with th._dynamo.config.patch(trace_autograd_ops=True):  # autograd.grad inside the graph
-                    return self._compiled(*args, **kwargs)
+                graphs, start = counters["stats"]["unique_graphs"], time.perf_counter()
+                # autograd.grad inside the graph; a graph per horizon and n_envs
+                with th._dynamo.config.patch(trace_autograd_ops=True, recompile_limit=RECOMPILE_LIMIT):
+                    result = self._compiled(*args, **kwargs)
+                if counters["stats"]["unique_graphs"] != graphs:
+                    self.compilations += 1
+                    self.compile_seconds += time.perf_counter() - start
+                return result
             except Exception as error:  # any compiler failure falls back to the reference
                 warnings.warn(
                     f"torch.compile failed on SPPO's {self.name} ({type(error).__name__}: {error}); running it eagerly "

@@ -37,6 +37,9 @@ def init_optimizer_state(optimizer: th.optim.Optimizer) -> None:
             state["exp_avg_sq"] = th.zeros_like(p, memory_format=th.preserve_format)
         elif state["step"].device != p.device:
             state["step"] = state["step"].to(p.device)
+        if p.device.type == "cuda":  # CUDA graphs update the state in place, at fixed addresses
+            for tensor in state.values():
+                th._dynamo.mark_static_address(tensor)
 
 
 def clip_by_total_norm(grads: Sequence[th.Tensor], max_norm: float) -> tuple[list[th.Tensor], th.Tensor]:

@@ -256,11 +256,12 @@ class MPPIPlanner:
         self.dtype = getattr(th, config.dtype)
         self._shadow: TOLD | None = None
         self._shadow_stale = True
-        self._mppi = CompiledFunction(mppi, compile, self.device, "planner")
+        self.function = CompiledFunction(mppi, compile, self.device, "planner")
 
     @property
     def compiled(self) -> bool:
-        return self._mppi.compiled
+        """Whether plans run the compiled graph."""
+        return self.function.compiled
 
     def initial_mean(self, n_envs: int) -> th.Tensor:
         """The cold start: a zero ``(E, H_max, A)`` mean."""
@@ -298,7 +299,8 @@ class MPPIPlanner:
         :param prev_mean: ``(E, H_max, A)`` the previous plan's mean (zeros where an episode starts).
         :param step: training step, for the horizon and ``ε`` schedules.
         :param deterministic: return ``μ_J``'s first action instead of a sample from ``N(μ_J, σ_J²)``.
-        :param generator: where the noise comes from (torch's global RNG if None).
+        :param generator: where the noise comes from (torch's global RNG on the model's device if None); a CPU
+            generator gives the same plan on every device.
         :return: ``(E, A)`` actions in [-1, 1] and the new ``(E, H_max, A)`` mean, the next call's ``prev_mean``.
         """
         cfg, n_envs = self.config, obs.shape[0]
@@ -308,10 +310,12 @@ class MPPIPlanner:
                 f"action dims) for {n_envs} observations, got {tuple(prev_mean.shape)}."
             )
         horizon = cfg.horizon_at(step)
-        noise = draw_noise(cfg, n_envs, horizon, self.action_dim, deterministic, generator, self.device)
+        noise_device = generator.device if generator is not None else self.device
+        noise = draw_noise(cfg, n_envs, horizon, self.action_dim, deterministic, generator, noise_device)
+        noise = PlanNoise(*(x.to(self.device) for x in noise))
         min_std = th.tensor(cfg.min_std_at(step), device=self.device)
         warm = warm_start(prev_mean.to(self.device), horizon)
-        action, mean = self._mppi(self._planning_model(model), obs.to(self.device), warm, noise, min_std, cfg)
+        action, mean = self.function(self._planning_model(model), obs.to(self.device), warm, noise, min_std, cfg)
         new_mean = th.zeros_like(prev_mean, device=self.device)
         new_mean[:, :horizon] = mean
         return action.clone(), new_mean

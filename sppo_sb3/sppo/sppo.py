@@ -86,8 +86,9 @@ class SPPO(OffPolicyAlgorithm):
     :param compile: compile the planner (all ``J`` iterations of Alg. 2) and the whole TOPO update (Alg. 3) with
         ``torch.compile`` (Inductor on CPU, CUDA graphs on CUDA): ``True``, ``False`` or ``"auto"`` (compile where
         ``torch.compile`` is available; see :func:`~sppo_sb3.common.compile.should_compile`). Each planning horizon
-        of the schedule and each number of envs is compiled once, on first use. The eager code is the reference
-        and is used, after one warning, if compiling fails.
+        of the schedule and each number of envs is compiled once, on first use: a run compiles ``H`` planner graphs
+        for training (one per horizon; more for evaluation VecEnvs of other sizes) and one update graph, see
+        :attr:`compile_stats`. The eager code is the reference and is used, after one warning, if compiling fails.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"TOLDPolicy": TOLDPolicy, "MlpPolicy": TOLDPolicy}
@@ -198,6 +199,16 @@ class SPPO(OffPolicyAlgorithm):
         self._plan_mean = self._restore_warm_start()
         self._train_stats = th.zeros(len(TOPO_STATS), device=self.device)
         self._train_stats_count = 0
+
+    @property
+    def compile_stats(self) -> dict[str, float]:
+        """How many graphs the planner and the TOPO update compiled so far, and the seconds that took."""
+        functions = (self.planner.function, self._topo_update)
+        return {
+            "planner_graphs": self.planner.function.compilations,
+            "update_graphs": self._topo_update.compilations,
+            "seconds": sum(f.compile_seconds for f in functions),
+        }
 
     def _restore_warm_start(self) -> th.Tensor:
         """Training's warm start as saved with the model, or a cold start if there is none or ``n_envs`` changed."""
@@ -354,9 +365,9 @@ class SPPO(OffPolicyAlgorithm):
         The planner's warm start is a recurrent state, as in SB3's ``RecurrentPPO``: pass the returned ``state`` to
         the next call (``evaluate_policy`` and ``EvalCallback`` do) and ``episode_start`` where an episode begins; with
         ``state=None`` the plan starts cold. Training keeps its own warm start, which ``predict`` never touches. A
-        deterministic plan is a pure function of ``(observation, state)``: its sampling noise is drawn from a
-        generator seeded the same way on every call. The observation is one the env returns (normalised under
-        ``VecNormalize``; the shield reads its unnormalised version).
+        deterministic plan is a pure function of ``(observation, state)``: its sampling noise is drawn from a CPU
+        generator seeded the same way on every call, so it is also the same on every device. The observation is one
+        the env returns (normalised under ``VecNormalize``; the shield reads its unnormalised version).
 
         :return: the actions and the new state: ``(mean,)``, the ``(n_envs, horizon, action dims)`` plan mean, or None
             when ``plan_at_predict`` is False.
@@ -370,7 +381,7 @@ class SPPO(OffPolicyAlgorithm):
         new_state: tuple[np.ndarray, ...] | None = None
         if self.plan_at_predict:
             prev_mean = self._warm_start_from_state(state, episode_start, len(obs))
-            generator = th.Generator(device=self.device).manual_seed(0) if deterministic else None
+            generator = th.Generator().manual_seed(0) if deterministic else None  # on the CPU: the same on every device
             model, step = self.policy.model, self.num_timesteps
             scaled, mean = self.planner.plan(model, obs_tensor, prev_mean, step, deterministic, generator)
             new_state = (mean.cpu().numpy(),)
