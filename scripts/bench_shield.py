@@ -84,7 +84,7 @@ def bench_rollouts(n_envs: int, repeats: int, threads: int) -> dict[str, float]:
     """Rollouts per second of one MPPI solve's particle rollouts: native (0 and ``threads`` threads) vs Python."""
     rule = HalfCheetahHeightShieldingRule(seed=0, n_threads=0)
     pooled = HalfCheetahHeightShieldingRule(seed=0, n_threads=threads)
-    obs, _ = sample_observations("SafeHalfCheetahHeight-v0", n_envs)
+    obs, _ = sample_observations("SafeHalfCheetahHeight-v1", n_envs)
     n = n_envs * rule.n_particles
     states = np.repeat(states_from_obs(rule.model, obs), rule.n_particles, axis=0)
     controls = np.clip(0.5 * np.random.default_rng(0).standard_normal((n, rule.horizon, rule.model.nu)), -1, 1)
@@ -129,9 +129,9 @@ def main() -> None:
 
     cheetah = HalfCheetahHeightShieldingRule(seed=0, n_threads=args.threads)
     overhead = bench_overhead("point", "SafePointCircle-v0", PointCircleShieldingRule(), args.n_envs, repeats)
-    overhead += bench_overhead("cheetah-mpc", "SafeHalfCheetahHeight-v0", cheetah, args.n_envs, repeats)
+    overhead += bench_overhead("cheetah-mpc", "SafeHalfCheetahHeight-v1", cheetah, args.n_envs, repeats)
     shared = HalfCheetahHeightShieldingRule(seed=0, n_threads=args.threads, replan=False)
-    overhead += bench_overhead("cheetah-shared", "SafeHalfCheetahHeight-v0", shared, args.n_envs, repeats)
+    overhead += bench_overhead("cheetah-shared", "SafeHalfCheetahHeight-v1", shared, args.n_envs, repeats)
     print(f"Shield overhead (rule.shield on real observations; cheetah rollout threads = {args.threads})")
     print_table(overhead, ["task", "n_envs", "ms_per_call", "ms_per_env_step", "env_ms_per_step"])
 

@@ -2,7 +2,8 @@
 
 Every particle of every MPC solve of a batch runs in one call of :mod:`mujoco.rollout` (C, threaded), so the cost of
 the rule is the physics alone. The front thigh's height is read per physics step by a ``framepos`` sensor added to
-the model (``objtype="body"`` measures the body's inertial frame, i.e. ``data.xipos``, the quantity of the env).
+the model on the body frame (``objtype="xbody"``, i.e. ``data.xpos``, the quantity of the env; ``"body"`` would
+measure the inertial frame ``data.xipos``).
 A position sensor is evaluated by ``mj_step`` *before* it integrates, so ``sensordata[k]`` is the height of the state
 *entering* physics step ``k``: the rollouts run one extra physics step and read the height after env step ``j`` at
 index ``frame_skip · j``.
@@ -27,13 +28,13 @@ _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 
 def build_height_model(xml_path: str | None = None) -> mujoco.MjModel:
-    """The env's MuJoCo model plus a ``framepos`` sensor on ``fthigh``'s centre of mass (its last 3 sensor values).
+    """The env's MuJoCo model plus a ``framepos`` sensor on ``fthigh``'s body frame (its last 3 sensor values).
 
     :param xml_path: the MJCF file; gymnasium's ``half_cheetah.xml`` by default.
     """
     spec = mujoco.MjSpec.from_file(xml_path or half_cheetah_xml_path())
     spec.add_sensor(
-        name="fthigh_com", type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=mujoco.mjtObj.mjOBJ_BODY, objname=HEIGHT_BODY
+        name="fthigh_frame", type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=mujoco.mjtObj.mjOBJ_XBODY, objname=HEIGHT_BODY
     )
     with warnings.catch_warnings():  # the stock model uses the deprecated `settotalmass`; gymnasium loads it as is
         warnings.simplefilter("ignore")
@@ -68,7 +69,7 @@ def rollout_heights_python(
 
     :param states: ``(M, nstate)`` full physics states.
     :param controls: ``(M, T, nu)`` controls, one per env step.
-    :return: ``(M, T)`` front-thigh heights after each env step.
+    :return: ``(M, T)`` front-thigh heights (body frame) after each env step.
     """
     body = model.body(HEIGHT_BODY).id
     heights = np.empty(controls.shape[:2])
@@ -79,7 +80,7 @@ def rollout_heights_python(
             data.ctrl[:] = controls[i, t]
             mujoco.mj_step(model, data, nstep=frame_skip)
             mujoco.mj_kinematics(model, data)
-            heights[i, t] = data.xipos[body, 2]
+            heights[i, t] = data.xpos[body, 2]
     return heights
 
 
