@@ -4,7 +4,7 @@ Runs, in one process:
 
 - ``overhead``: wall time of one ``rule.shield(obs, actions)`` call (eq. 12: ``ζ(s)``, then ``Q̄(s, a)`` and
   ``Q̄(s, ζ(s))``) on real observations, for the Point rule and the Half-Cheetah MPC rule (``cheetah-mpc``: the
-  paper's re-planning ``Q̄``; ``cheetah-shared``: ``replan=False``, one solve), single env (``B = 1``) and batched
+  certified rule; ``cheetah-full``: ``certify=False``, every quantity solved), single env (``B = 1``) and batched
   over ``n_envs`` (one call for all envs), reported per call and per env step, next to the env's own step;
 - ``rollouts``: one MPPI solve's worth of particle rollouts of the Cheetah rule (``B · 64`` rollouts of ``5·15 + 1``
   physics steps), natively with :mod:`mujoco.rollout` (calling thread, and a thread pool) against a plain Python
@@ -130,8 +130,8 @@ def main() -> None:
     cheetah = HalfCheetahHeightShieldingRule(seed=0, n_threads=args.threads)
     overhead = bench_overhead("point", "SafePointCircle-v0", PointCircleShieldingRule(), args.n_envs, repeats)
     overhead += bench_overhead("cheetah-mpc", "SafeHalfCheetahHeight-v1", cheetah, args.n_envs, repeats)
-    shared = HalfCheetahHeightShieldingRule(seed=0, n_threads=args.threads, replan=False)
-    overhead += bench_overhead("cheetah-shared", "SafeHalfCheetahHeight-v1", shared, args.n_envs, repeats)
+    shared = HalfCheetahHeightShieldingRule(seed=0, n_threads=args.threads, certify=False)
+    overhead += bench_overhead("cheetah-full", "SafeHalfCheetahHeight-v1", shared, args.n_envs, repeats)
     print(f"Shield overhead (rule.shield on real observations; cheetah rollout threads = {args.threads})")
     print_table(overhead, ["task", "n_envs", "ms_per_call", "ms_per_env_step", "env_ms_per_step"])
 

@@ -131,10 +131,11 @@ def test_rule_rollouts_match_the_env(env: SafeHalfCheetahHeightEnv) -> None:
     np.testing.assert_array_equal(rule.rollout_heights(states, controls), python)
 
 
+@pytest.mark.parametrize("certify", [True, False])
 def test_shield_blocks_a_collapse_and_lets_a_quiet_stand_pass(
-    env: SafeHalfCheetahHeightEnv, states: dict[str, np.ndarray]
+    env: SafeHalfCheetahHeightEnv, states: dict[str, np.ndarray], certify: bool
 ) -> None:
-    rule = make_rule()
+    rule = HalfCheetahHeightShieldingRule(seed=0, n_threads=0, certify=certify)
     obs = np.stack([states["falling"], states["standing"]])
     decision = rule.shield(obs, np.stack([-np.ones(6), HOLD]))
     assert decision.intervened.tolist() == [True, False]
@@ -158,12 +159,14 @@ def test_backup_is_never_shielded_and_inside_the_action_space(
 
 def test_deterministic_given_a_seed(states: dict[str, np.ndarray]) -> None:
     obs = np.stack([states["falling"], states["standing"]])
-    actions = np.stack([np.zeros(6), -HOLD])
+    actions = np.stack([-np.ones(6), -HOLD])
     first, second = make_rule(seed=7, n_threads=0), make_rule(seed=7, n_threads=2)
     for _ in range(2):
         a, b = first.shield(obs, actions), second.shield(obs, actions)
         np.testing.assert_array_equal(a.actions, b.actions)
         np.testing.assert_array_equal(a.advantage, b.advantage)
+    np.testing.assert_array_equal(first.backup_action(obs), second.backup_action(obs))
+    assert not np.array_equal(make_rule(seed=8).backup_action(obs), first.backup_action(obs))  # the seed matters
 
 
 def test_picklable_and_registered(env: SafeHalfCheetahHeightEnv, states: dict[str, np.ndarray]) -> None:
@@ -171,18 +174,9 @@ def test_picklable_and_registered(env: SafeHalfCheetahHeightEnv, states: dict[st
     clone = pickle.loads(pickle.dumps(rule))
     obs = states["standing"][None]
     np.testing.assert_array_equal(rule.backup_action(obs), clone.backup_action(obs))
+    rule.shield(obs, HOLD[None])  # stores a warm plan for the next state ...
+    assert len(rule.warm_starts.keys) == 1
+    assert len(pickle.loads(pickle.dumps(rule)).warm_starts.keys) == 0  # ... which belongs to the running episode
     assert isinstance(default_shielding_rule("SafeHalfCheetahHeight-v1"), HalfCheetahHeightShieldingRule)
     default = env.default_shielding_rule()
     assert (default.eta, default.gamma, default.alpha, default.horizon, default.n_particles) == (0.2, 0.99, 0.05, 15, 64)
-
-
-def test_shared_solve_variant(states: dict[str, np.ndarray]) -> None:
-    """``replan=False``: one MPC solve at ``s`` serves ``ζ``, ``Q̄(s, a)`` and ``Q̄(s, ζ(s))``."""
-    obs = np.stack([states["falling"], states["standing"]])
-    rule = HalfCheetahHeightShieldingRule(seed=2, n_threads=0, replan=False)
-    decision = rule.shield(obs, np.stack([-np.ones(6), HOLD]))
-    assert decision.intervened.tolist() == [True, False]
-    backup = rule.backup_action(obs)  # the second draw of the noise (one solve per draw) ...
-    twin = HalfCheetahHeightShieldingRule(seed=2, n_threads=0, replan=False)
-    twin.backup_action(obs)
-    np.testing.assert_array_equal(twin.advantage(obs, backup), 0.0)  # ... solved again from the same draw: Ā = 0
