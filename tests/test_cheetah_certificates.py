@@ -12,9 +12,11 @@ from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule, WarmStarts, 
 HOLD = np.full(6, 0.3)  # stands still, front thigh at ~0.61
 
 
-def small_rule(certify: bool, seed: int = 0) -> HalfCheetahHeightShieldingRule:
+def small_rule(certify: bool, certificate_particles: int = 3) -> HalfCheetahHeightShieldingRule:
     """A cheaper MPC (the facts hold for any horizon and particle count)."""
-    return HalfCheetahHeightShieldingRule(horizon=8, n_particles=16, seed=seed, certify=certify, n_threads=0)
+    return HalfCheetahHeightShieldingRule(
+        horizon=8, n_particles=16, certify=certify, certificate_particles=certificate_particles, n_threads=0
+    )
 
 
 def observations_near_violations(n: int, seed: int = 0) -> np.ndarray:
@@ -88,9 +90,11 @@ def shielded_run(rule: HalfCheetahHeightShieldingRule, steps: int, batched: bool
     return decisions
 
 
-def test_certified_rule_decides_as_the_full_rule() -> None:
+@pytest.mark.parametrize("certificate_particles", [0, 3])
+def test_certified_rule_decides_as_the_full_rule(certificate_particles: int) -> None:
     steps = 60
-    certified, full = small_rule(certify=True), small_rule(certify=False)
+    certified = small_rule(certify=True, certificate_particles=certificate_particles)
+    full = small_rule(certify=False, certificate_particles=certificate_particles)
     fast_decisions, full_decisions = shielded_run(certified, steps, True), shielded_run(full, steps, True)
     for (fast_actions, fast_intervened), (full_actions, full_intervened) in zip(fast_decisions, full_decisions):
         np.testing.assert_array_equal(fast_intervened, full_intervened)

@@ -220,12 +220,14 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
     Warm start: ``W`` is the plan the rule meant to follow from ``s`` when it shielded the previous step (see
     :class:`WarmStarts`; the zero plan at an episode's start). After the step it is, from the next state: where
     shielded, the tail of ``ζ``'s plan (the backup plan, shifted); else ``W[1:]`` if "``a``, then ``W[1:]``" has
-    ``J <= η`` (the warm plan still certifies the executed ``a``); else the plan of the ``Q̄(s, a)`` solve. A zero step
-    is appended.
+    ``J <= η`` (the warm plan still certifies the executed ``a``), else the first of the next
+    ``certificate_particles`` particles of ``Q̄(s, a)``'s solve that does; else the plan of the ``Q̄(s, a)`` solve.
+    A zero step is appended.
 
     Certificates (``certify=True``): since ``J >= 0`` and the MPC never does worse than its nominal plan,
-    ``Ā(s, a) <= Q̄(s, a) <= J([a, W[1:]])``. Per env step the rule rolls ``[a, W[1:]]`` once; where its ``J <= η``,
-    ``(s, a) ∉ I`` and nothing is solved. Elsewhere it solves ``Q̄(s, a)`` (where ``<= η``, again ``(s, a) ∉ I``),
+    ``Ā(s, a) <= Q̄(s, a) <= J([a, W[1:]])``, and the same holds for every particle of ``Q̄(s, a)``'s solve. Per env
+    step the rule rolls ``[a, W[1:]]`` once; where its ``J <= η``, ``(s, a) ∉ I`` and nothing is solved; elsewhere it
+    tries a few more particles the same way. Only then it solves ``Q̄(s, a)`` (where ``<= η``, again ``(s, a) ∉ I``),
     then ``ζ(s)``, and ``Q̄(s, ζ(s))`` only where its upper bounds leave the decision open
     (:meth:`_shield_certified`). Each stage is one batch over the envs of the call. The decisions and the warm plans
     are those of ``certify=False``, which solves ``Q̄(s, a)``, ``ζ(s)`` and ``Q̄(s, ζ(s))`` on every step.
@@ -241,6 +243,8 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
     :param seed: seed of the particle noise ``ε`` (``None``: fresh entropy).
     :param certify: skip the solves that a certificate makes unnecessary (same decisions); ``False`` solves
         ``ζ(s)``, ``Q̄(s, a)`` and ``Q̄(s, ζ(s))`` on every step, the reference.
+    :param certificate_particles: particles of ``Q̄(s, a)``'s solve, after ``W[1:]``, tried as certificates (and as
+        the plan to follow) before solving.
     :param n_threads: threads of the rollout pool; ``None``: one per available core; 0: the calling thread.
     :param warm_starts: how many warm plans the rule keeps (one per running env is needed).
     :param xml_path: the MJCF model (must be the env's); gymnasium's ``half_cheetah.xml`` by default.
@@ -258,6 +262,7 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
         penalty: float = -1.0,
         seed: int | None = 0,
         certify: bool = True,
+        certificate_particles: int = 16,
         n_threads: int | None = None,
         warm_starts: int = 256,
         xml_path: str | None = None,
@@ -273,6 +278,7 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
         self.gamma = gamma
         self.seed = seed
         self.certify = certify
+        self.certificate_particles = min(certificate_particles, n_particles - 1)
         self.n_threads = len(os.sched_getaffinity(0)) if n_threads is None else n_threads
         self.xml_path = xml_path
         self._build()
@@ -361,7 +367,7 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
         :return: ``(M, K)`` or ``(M,)`` costs.
         """
         shape = plans.shape[:-2]
-        if len(states) == 0:
+        if plans.size == 0:
             return np.zeros(shape)
         plans = plans.reshape(len(states), -1, *plans.shape[-2:])
         if first_action is not None:
@@ -370,6 +376,15 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
         k = plans.shape[1]
         heights = self.rollout_heights(np.repeat(states, k, axis=0), plans.reshape(-1, *plans.shape[2:]))
         return self.discounted_cost(heights).reshape(shape)
+
+    def particles(self, nominal: np.ndarray, count: int | None = None) -> np.ndarray:
+        """The first ``count`` (default: all ``N``) MPPI particles ``clip(W + σ·ε_i)`` around ``nominal`` ``(M, L, nu)``.
+
+        The ``Q̄`` solves (``L = H - 1``, around ``W[1:]``) perturb with ``ε_i[1:]``, as ``ζ``'s solve perturbs ``W``
+        with ``ε_i``: :return: ``(M, count, L, nu)``, particle 0 being ``nominal`` itself.
+        """
+        noise = self.noise[:count, self.horizon - nominal.shape[1] :]
+        return np.clip(nominal[:, None] + noise[None], self.action_low, self.action_high)
 
     def solve(self, states: np.ndarray, nominal: np.ndarray, first_action: np.ndarray | None = None) -> MPCSolution:
         """The MPC: one MPPI iteration around ``nominal``; of the MPPI plan and the best particle, the one with lower ``J``.
@@ -383,11 +398,10 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
             action).
         :param first_action: ``(M, nu)`` a fixed first action, or ``None``.
         """
-        m, length = nominal.shape[:2]
+        m = len(nominal)
         if m == 0:
             return MPCSolution(nominal.copy(), np.zeros(0), np.zeros(0, dtype=bool))
-        noise = self.noise[:, self.horizon - length :]  # the Q̄ solves perturb W[1:] as ζ's solve perturbs W
-        particles = np.clip(nominal[:, None] + noise[None], self.action_low, self.action_high)  # (M, N, L, nu)
+        particles = self.particles(nominal)
         scores = self.plan_costs(states, particles, first_action)
         weights = np.exp(-(scores - scores.min(axis=1, keepdims=True)) / self.temperature)
         weights /= weights.sum(axis=1, keepdims=True)
@@ -398,6 +412,15 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
         is_particle = mppi_cost >= best_cost
         plans = np.where(is_particle[:, None, None], particles[np.arange(m), best], mppi)
         return MPCSolution(plans, np.where(is_particle, best_cost, mppi_cost), is_particle)
+
+    def first_certifying(self, costs: np.ndarray) -> np.ndarray:
+        """Per row of ``costs`` ``(M, K)``, the index of the first ``J <= η``; ``K`` where there is none."""
+        below = np.concatenate([costs <= self.eta, np.ones((len(costs), 1), dtype=bool)], axis=1)
+        return np.argmax(below, axis=1)
+
+    def certificate_candidates(self, warm: np.ndarray) -> np.ndarray:
+        """``(M, 1 + certificate_particles, H - 1, nu)``: ``W[1:]`` and the next particles of ``Q̄(s, a)``'s solve."""
+        return self.particles(warm[:, 1:], 1 + self.certificate_particles)
 
     # --- the rule -----------------------------------------------------------------------------------------------
 
@@ -434,8 +457,8 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
     def _shield_solved(self, states: np.ndarray, actions: np.ndarray, warm: np.ndarray) -> ShieldStep:
         """The reference: ``Q̄(s, a)``, ``ζ(s)`` and ``Q̄(s, ζ(s))`` solved for every state, ``Ā`` exact.
 
-        The plan after the executed action: ``ζ``'s plan's tail where shielded, else ``W[1:]`` where
-        ``J([a, W[1:]]) <= η``, else the plan of the ``Q̄(s, a)`` solve.
+        The plan after the executed action: ``ζ``'s plan's tail where shielded; else the first of the certificate
+        candidates (:meth:`certificate_candidates`) with ``J([a, candidate]) <= η``; else the ``Q̄(s, a)`` solve's plan.
         """
         n = len(states)
         after_a = self.solve(states, warm[:, 1:], actions)
@@ -443,16 +466,20 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
         backup_value = self.solve(states, warm[:, 1:], backup_plan[:, 0]).costs
         advantage = after_a.costs - backup_value
         intervened = in_shielding_set(advantage, self.eta)
-        keeps_warm = self.plan_costs(states, warm[:, 1:], actions) <= self.eta
-        tails = np.where(keeps_warm[:, None, None], warm[:, 1:], after_a.plans)
+        candidates = self.certificate_candidates(warm)
+        first = self.first_certifying(self.plan_costs(states, candidates, actions))
+        certified = first < candidates.shape[1]
+        chosen = candidates[np.arange(n), np.minimum(first, candidates.shape[1] - 1)]
+        tails = np.where(certified[:, None, None], chosen, after_a.plans)
         tails = np.where(intervened[:, None, None], backup_plan[:, 1:], tails)
         return ShieldStep(backup_plan[:, 0], intervened, advantage, tails, n, n, n)
 
     def _shield_certified(self, states: np.ndarray, actions: np.ndarray, warm: np.ndarray) -> ShieldStep:
         """:meth:`_shield_solved`'s decisions and plans, solving only what the bounds on ``Ā`` leave open.
 
-        1. ``Ā(s, a) <= Q̄(s, a) <= J([a, W[1:]])`` (``J >= 0``; ``W[1:]`` is particle 0 of ``Q̄(s, a)``'s solve):
-           where ``<= η``, keep ``a`` and ``W[1:]``.
+        1. ``Ā(s, a) <= Q̄(s, a) <= J([a, c])`` for every particle ``c`` of ``Q̄(s, a)``'s solve (``J >= 0``, and the
+           solve does no worse than its best particle). Roll ``[a, W[1:]]`` (particle 0); where its ``J > η``, the
+           next ``certificate_particles`` particles: where one has ``J <= η``, keep ``a`` and follow that particle.
         2. Else solve ``Q̄(s, a)``: where ``<= η``, keep ``a`` and follow the solve's plan.
         3. Else solve ``ζ(s)`` and bound ``Q̄(s, ζ(s))`` from above by two of its solve's candidates, ``W[1:]`` and,
            when ``ζ``'s plan is a particle, that plan's tail (then ``J([ζ, tail])`` is ``ζ``'s plan's own ``J``):
@@ -461,12 +488,20 @@ class HalfCheetahHeightShieldingRule(ShieldingRule):
 
         The advantage reported is the bound that decided (an upper bound ``<= η`` in 1-2, a lower bound ``> η`` in 3).
         """
-        advantage = self.plan_costs(states, warm[:, 1:], actions)
-        tails = warm[:, 1:].copy()
+        candidates = self.certificate_candidates(warm)
+        advantage = self.plan_costs(states, candidates[:, 0], actions)
+        tails = candidates[:, 0].copy()
         backup = actions.copy()
         intervened = np.zeros(len(states), dtype=bool)
 
         open_ = np.flatnonzero(advantage > self.eta)
+        costs = self.plan_costs(states[open_], candidates[open_, 1:], actions[open_])
+        first = self.first_certifying(costs)
+        certified = first < costs.shape[1]
+        done, first = open_[certified], first[certified]
+        advantage[done], tails[done] = costs[certified, first], candidates[done, 1 + first]
+
+        open_ = open_[~certified]
         after_a = self.solve(states[open_], warm[open_, 1:], actions[open_])
         advantage[open_], tails[open_] = after_a.costs, after_a.plans
         q_solves = len(open_)
