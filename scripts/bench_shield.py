@@ -1,17 +1,23 @@
-"""Shield benchmark: the shield's overhead per env step on both tasks, and the Cheetah MPC's native rollouts.
+"""Shield benchmark: the shields' cost per env step, the Half-Cheetah rule on a real training run's states.
 
 Runs, in one process:
 
-- ``overhead``: wall time of one ``rule.shield(obs, actions)`` call (eq. 12: ``ζ(s)``, then ``Q̄(s, a)`` and
-  ``Q̄(s, ζ(s))``) on real observations, for the Point rule and the Half-Cheetah MPC rule (``cheetah-mpc``: the
-  paper's re-planning ``Q̄``; ``cheetah-shared``: ``replan=False``, one solve), single env (``B = 1``) and batched
-  over ``n_envs`` (one call for all envs), reported per call and per env step, next to the env's own step;
-- ``rollouts``: one MPPI solve's worth of particle rollouts of the Cheetah rule (``B · 64`` rollouts of ``5·15 + 1``
-  physics steps), natively with :mod:`mujoco.rollout` (calling thread, and a thread pool) against a plain Python
-  ``mj_step`` loop doing the same work; the heights of both are checked equal.
+- ``replay``: the observations and proposed actions of a real shielded training run on ``SafeHalfCheetahHeight-v1``
+  (SPPO at the small configuration of ``hyperparams/small/sppo.yml``, or SAILR at ``hyperparams/sailr.yml``; recorded
+  once into ``--states``, then reused) are replayed through the Half-Cheetah rule, certified (the default) and full
+  (``certify=False``, every quantity solved on every step), with 1 env (the run's steps in order) and with 8 envs
+  (the run cut into 8 consecutive pieces, one per env, shielded in one call per step). Reported: mean and 95th
+  percentile ms per env step (a call's time over its envs), the share of steps that solved ``Q̄(s, a)``, ``ζ(s)``
+  and ``Q̄(s, ζ(s))``, the interventions, and whether both rules took the same decisions (executed action and
+  intervention) on every replayed step;
+- ``point``: ms per env step of the Point rule on visited states, 1 and 8 envs;
+- ``rollouts``: the native rollouts the Cheetah rule is made of (1 rollout: a certificate; 65: one MPC solve; 520: one
+  solve for 8 envs; ``5·15 + 1`` physics steps each), on the calling thread and on the rule's thread pool, against a
+  Python ``mj_step`` loop doing the same work (heights checked equal).
 
-    python scripts/bench_shield.py              # n_envs 8, 5 repeats
-    python scripts/bench_shield.py --quick      # 1 repeat, fewer rollouts
+    python scripts/bench_shield.py                       # record (if needed) 3000 steps of SPPO, replay all
+    python scripts/bench_shield.py --envs 1 --full-steps 1000
+    python scripts/bench_shield.py --quick               # a 400-step recording, 200 full-rule steps
 """
 
 from __future__ import annotations
@@ -20,19 +26,150 @@ import argparse
 import json
 import os
 import time
-from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import mujoco
 import numpy as np
+import yaml
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
-from sppo_sb3.shield.base import ShieldingRule
+from sppo_sb3.shield.base import ShieldDecision, ShieldingRule
 from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule, rollout_heights_python, states_from_obs
 from sppo_sb3.shield.point import PointCircleShieldingRule
+from sppo_sb3.zoo import eval_kwargs_strings, eval_yml_string
+
+ENV_ID = "SafeHalfCheetahHeight-v1"
+ROOT = Path(__file__).resolve().parents[1]
+HYPERPARAMS = {"sppo": ROOT / "hyperparams" / "small" / "sppo.yml", "sailr": ROOT / "hyperparams" / "sailr.yml"}
 
 
-def timed(fn: Callable[[], object], repeats: int) -> float:
+# ---------------------------------------------------------------------------------------------------- recording
+class RecordingRule(HalfCheetahHeightShieldingRule):
+    """The default Half-Cheetah rule, keeping every observation and proposed action it shields."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        self.observations: list[np.ndarray] = []
+        self.proposals: list[np.ndarray] = []
+
+    def shield(self, obs: np.ndarray, actions: np.ndarray) -> ShieldDecision:
+        self.observations.append(np.array(obs, dtype=np.float64).reshape(len(obs), -1))
+        self.proposals.append(np.array(actions, dtype=np.float64).reshape(len(obs), -1))
+        return super().shield(obs, actions)
+
+
+def algo_kwargs(algo: str) -> dict[str, Any]:
+    """The yml entry of ``algo`` for the task, as constructor keywords (zoo-only keys dropped)."""
+    kwargs = eval_kwargs_strings(dict(yaml.safe_load(HYPERPARAMS[algo].read_text())[ENV_ID]))
+    if isinstance(kwargs.get("policy_kwargs"), str):  # rl-zoo3 evaluates this one itself
+        kwargs["policy_kwargs"] = eval_yml_string(kwargs["policy_kwargs"])
+    for key in ("n_timesteps", "n_envs", "normalize", "shield"):
+        kwargs.pop(key, None)
+    return kwargs
+
+
+def record_run(algo: str, steps: int, seed: int) -> dict[str, np.ndarray]:
+    """Train ``algo`` shielded on one env for ``steps`` env steps; the shield's inputs, in order, and the violations."""
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from sppo_sb3 import SAILR, SPPO
+
+    rule = RecordingRule(seed=seed)
+    env = make_vec_env(ENV_ID, n_envs=1, seed=seed)
+    cls = {"sppo": SPPO, "sailr": SAILR}[algo]
+    kwargs = algo_kwargs(algo)
+    model = cls(kwargs.pop("policy"), env, shield=rule, seed=seed, **kwargs)
+    model.learn(steps)
+    return {
+        "obs": np.concatenate(rule.observations)[:steps],
+        "actions": np.concatenate(rule.proposals)[:steps],
+        "violations": np.array(model.safety_metrics.violations),
+        "interventions": np.array(model.safety_metrics.interventions),
+    }
+
+
+def load_or_record(path: Path, algo: str, steps: int, seed: int) -> dict[str, np.ndarray]:
+    """The recorded run at ``path``, recorded first when missing."""
+    if not path.exists():
+        start = time.perf_counter()
+        run = record_run(algo, steps, seed)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(path, **run)
+        print(f"recorded {len(run['obs'])} steps of shielded {algo} on {ENV_ID} in {time.perf_counter() - start:.0f} s")
+    with np.load(path) as run:
+        return dict(run)
+
+
+# ---------------------------------------------------------------------------------------------------- replay
+def env_sequences(obs: np.ndarray, actions: np.ndarray, n_envs: int) -> tuple[np.ndarray, np.ndarray]:
+    """The run cut into ``n_envs`` consecutive pieces of equal length: ``(T, n_envs, ...)`` per step of all envs."""
+    length = len(obs) // n_envs
+    cut = n_envs * length
+    return (
+        obs[:cut].reshape(n_envs, length, -1).swapaxes(0, 1),
+        actions[:cut].reshape(n_envs, length, -1).swapaxes(0, 1),
+    )
+
+
+def replay(rule: HalfCheetahHeightShieldingRule, obs: np.ndarray, actions: np.ndarray) -> dict[str, Any]:
+    """Shield each step ``(n_envs, ...)`` of ``obs``/``actions`` in one call; times, decisions and solve counts."""
+    seconds, executed, intervened = [], [], []
+    for step_obs, step_actions in zip(obs, actions):
+        start = time.perf_counter()
+        decision = rule.shield(step_obs, step_actions)
+        seconds.append(time.perf_counter() - start)
+        executed.append(decision.actions)
+        intervened.append(decision.intervened)
+    counts = rule.solve_counts
+    ms_per_env_step = 1e3 * np.asarray(seconds) / obs.shape[1]
+    return {
+        "env_steps": counts.steps,
+        "mean_ms": float(ms_per_env_step.mean()),
+        "p95_ms": float(np.percentile(ms_per_env_step, 95)),
+        "q_solves": counts.q_solves / counts.steps,
+        "backup_solves": counts.backup_solves / counts.steps,
+        "backup_value_solves": counts.backup_value_solves / counts.steps,
+        "interventions": int(np.sum(intervened)),
+        "executed": np.asarray(executed),
+        "intervened": np.asarray(intervened),
+    }
+
+
+def bench_replay(run: dict[str, np.ndarray], envs: list[int], full_steps: int | None, threads: int) -> list[dict[str, Any]]:
+    """Certified and full rule on the recorded run, for each number of envs; decisions compared step by step."""
+    rows = []
+    for n_envs in envs:
+        obs, actions = env_sequences(run["obs"], run["actions"], n_envs)
+        certified = replay(HalfCheetahHeightShieldingRule(n_threads=threads), obs, actions)
+        limit = len(obs) if full_steps is None else max(1, full_steps // n_envs)
+        full = replay(HalfCheetahHeightShieldingRule(n_threads=threads, certify=False), obs[:limit], actions[:limit])
+        same = np.all(certified["executed"][:limit] == full["executed"], axis=2) & (
+            certified["intervened"][:limit] == full["intervened"]
+        )
+        for name, result in (("certified", certified), ("full", full)):
+            row = {k: v for k, v in result.items() if k not in ("executed", "intervened")}
+            rows.append({"rule": name, "n_envs": n_envs, **row, "same_decisions": f"{int(same.sum())}/{same.size}"})
+    return rows
+
+
+# ---------------------------------------------------------------------------------------------------- point, rollouts
+def visited_observations(env_id: str, n: int, seed: int = 0) -> np.ndarray:
+    """``n`` observations visited by random actions (a few steps after reset)."""
+    env = gym.make(env_id)
+    env.action_space.seed(seed)
+    visited = []
+    for i in range(n):
+        obs, _ = env.reset(seed=seed + i)
+        for _ in range(3):
+            obs, *_ = env.step(env.action_space.sample())
+        visited.append(obs)
+    env.close()
+    return np.asarray(visited, dtype=np.float64)
+
+
+def best_time(fn: Any, repeats: int) -> float:
     """Best wall time of ``repeats`` calls after one warm-up call, in seconds."""
     fn()
     best = float("inf")
@@ -43,122 +180,99 @@ def timed(fn: Callable[[], object], repeats: int) -> float:
     return best
 
 
-def sample_observations(env_id: str, n: int, seed: int = 0) -> tuple[np.ndarray, float]:
-    """``n`` observations visited by random actions (a few steps after reset), and the env's seconds per step."""
-    env = gym.make(env_id)
-    env.action_space.seed(seed)
-    obs_list, steps, start = [], 0, time.perf_counter()
-    for i in range(n):
-        obs, _ = env.reset(seed=seed + i)
-        for _ in range(3):
-            obs, _, terminated, truncated, _ = env.step(env.action_space.sample())
-            steps += 1
-            if terminated or truncated:
-                obs, _ = env.reset()
-        obs_list.append(obs)
-    per_step = (time.perf_counter() - start) / steps
-    env.close()
-    return np.asarray(obs_list, dtype=np.float64), per_step
-
-
-def bench_overhead(name: str, env_id: str, rule: ShieldingRule, n_envs: int, repeats: int) -> list[dict[str, object]]:
-    """ms per ``shield`` call and per env step, for ``B = 1`` and ``B = n_envs``."""
-    obs, env_step = sample_observations(env_id, n_envs)
-    actions = np.random.default_rng(0).uniform(-1, 1, (n_envs, 2 if "Point" in env_id else 6))
+def bench_point(repeats: int) -> list[dict[str, Any]]:
+    """ms per env step of the Point rule, 1 and 8 envs in one call."""
+    rule: ShieldingRule = PointCircleShieldingRule()
+    obs = visited_observations("SafePointCircle-v0", 8)
+    actions = np.random.default_rng(0).uniform(-1, 1, (8, 2))
     rows = []
-    for batch in sorted({1, n_envs}):
-        seconds = timed(lambda b=batch: rule.shield(obs[:b], actions[:b]), repeats)
-        rows.append(
-            dict(
-                task=name,
-                n_envs=batch,
-                ms_per_call=1e3 * seconds,
-                ms_per_env_step=1e3 * seconds / batch,
-                env_ms_per_step=1e3 * env_step,
-            )
-        )
+    for n_envs in (1, 8):
+        seconds = best_time(lambda n=n_envs: rule.shield(obs[:n], actions[:n]), repeats)
+        rows.append({"rule": "point", "n_envs": n_envs, "ms_per_env_step": 1e3 * seconds / n_envs})
     return rows
 
 
-def bench_rollouts(n_envs: int, repeats: int, threads: int) -> dict[str, float]:
-    """Rollouts per second of one MPPI solve's particle rollouts: native (0 and ``threads`` threads) vs Python."""
-    rule = HalfCheetahHeightShieldingRule(seed=0, n_threads=0)
-    pooled = HalfCheetahHeightShieldingRule(seed=0, n_threads=threads)
-    obs, _ = sample_observations("SafeHalfCheetahHeight-v0", n_envs)
-    n = n_envs * rule.n_particles
-    states = np.repeat(states_from_obs(rule.model, obs), rule.n_particles, axis=0)
-    controls = np.clip(0.5 * np.random.default_rng(0).standard_normal((n, rule.horizon, rule.model.nu)), -1, 1)
-    data = mujoco.MjData(rule.model)
-    python = timed(lambda: rollout_heights_python(rule.model, data, states, controls), max(1, repeats // 2))
-    native = timed(lambda: rule.rollout_heights(states, controls), repeats)
-    threaded = timed(lambda: pooled.rollout_heights(states, controls), repeats)
-    diff = np.abs(pooled.rollout_heights(states, controls) - rollout_heights_python(rule.model, data, states, controls)).max()
-    physics_steps = rule.horizon * 5 + 1
-    return dict(
-        rollouts=n,
-        physics_steps_per_rollout=physics_steps,
-        python_rollouts_per_s=n / python,
-        native_rollouts_per_s=n / native,
-        native_threads=threads,
-        native_threaded_rollouts_per_s=n / threaded,
-        ratio_native_vs_python=python / native,
-        ratio_threaded_vs_python=python / threaded,
-        us_per_physics_step_python=1e6 * python / (n * physics_steps),
-        us_per_physics_step_native=1e6 * native / (n * physics_steps),
-        max_abs_height_diff=float(diff),
-    )
+def bench_rollouts(threads: int, repeats: int, sizes: tuple[int, ...]) -> list[dict[str, Any]]:
+    """Rollouts per second of ``sizes`` rollouts: native on the calling thread and on ``threads`` threads, Python loop."""
+    serial = HalfCheetahHeightShieldingRule(n_threads=0)
+    pooled = HalfCheetahHeightShieldingRule(n_threads=threads)
+    obs = visited_observations(ENV_ID, 8)
+    rows = []
+    for size in sizes:
+        states = states_from_obs(serial.model, obs[np.arange(size) % len(obs)])
+        controls = np.clip(0.5 * np.random.default_rng(size).standard_normal((size, serial.horizon, 6)), -1, 1)
+        rows.append(time_rollouts(serial, pooled, states, controls, repeats))
+    return rows
 
 
-def print_table(rows: list[dict[str, object]], keys: list[str]) -> None:
-    """A small fixed-width table of ``keys`` for each row."""
-    print("  ".join(f"{k:>16}" for k in keys))
+def time_rollouts(
+    serial: HalfCheetahHeightShieldingRule,
+    pooled: HalfCheetahHeightShieldingRule,
+    states: np.ndarray,
+    controls: np.ndarray,
+    repeats: int,
+) -> dict[str, Any]:
+    """One row of :func:`bench_rollouts`: the same rollouts in Python, natively, natively on the pool."""
+    data = mujoco.MjData(serial.model)
+    python = best_time(lambda: rollout_heights_python(serial.model, data, states, controls), 1)
+    native = best_time(lambda: serial.rollout_heights(states, controls), repeats)
+    threaded = best_time(lambda: pooled.rollout_heights(states, controls), repeats)
+    reference = rollout_heights_python(serial.model, data, states, controls)
+    return {
+        "rollouts": len(states),
+        "python_ms": 1e3 * python,
+        "native_ms": 1e3 * native,
+        f"{pooled.n_threads}_threads_ms": 1e3 * threaded,
+        "threads_speedup": native / threaded,
+        "us_per_physics_step": 1e6 * native / (len(states) * (5 * controls.shape[1] + 1)),
+        "heights_equal": bool(np.array_equal(pooled.rollout_heights(states, controls), reference)),
+    }
+
+
+def print_table(title: str, rows: list[dict[str, Any]]) -> None:
+    """A fixed-width table of ``rows`` (the keys of the first row)."""
+    keys = list(rows[0])
+    print(f"\n{title}")
+    print("  ".join(f"{k:>19}" for k in keys))
     for row in rows:
-        cells = [f"{row[k]:>16.3f}" if isinstance(row[k], float) else f"{row[k]!s:>16}" for k in keys]
-        print("  ".join(cells))
+        print("  ".join(f"{row[k]:>19.3f}" if isinstance(row[k], float) else f"{row[k]!s:>19}" for k in keys))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--n-envs", type=int, default=8, help="batch size of the batched measurements")
-    parser.add_argument("--repeats", type=int, default=5, help="timed repeats (best is reported)")
+    parser.add_argument("--algo", choices=sorted(HYPERPARAMS), default="sppo", help="the recorded training run")
+    parser.add_argument("--steps", type=int, default=3000, help="env steps of the recorded run")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the recorded run")
+    parser.add_argument("--states", type=Path, default=None, help="recorded run (default: results/bench_shield/...)")
+    parser.add_argument("--envs", type=int, nargs="+", default=[1, 8], help="envs per shield call in the replay")
+    parser.add_argument("--full-steps", type=int, default=None, help="replay only this many env steps with the full rule")
     parser.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)), help="rollout threads")
-    parser.add_argument("--quick", action="store_true", help="1 repeat and a batch of 2 for the rollout comparison")
-    parser.add_argument("--json", type=str, default=None, help="also write the figures to this file")
+    parser.add_argument("--repeats", type=int, default=5, help="timed repeats of the point and rollout figures")
+    parser.add_argument("--skip", nargs="*", default=[], choices=["replay", "point", "rollouts"], help="parts to skip")
+    parser.add_argument("--quick", action="store_true", help="a 400-step recording and 200 full-rule steps")
+    parser.add_argument("--json", type=Path, default=None, help="also write the figures to this file")
     args = parser.parse_args()
-    repeats = 1 if args.quick else args.repeats
+    if args.quick:
+        args.steps, args.full_steps, args.repeats = 400, args.full_steps or 200, 1
+    states = args.states or ROOT / "results" / "bench_shield" / f"{args.algo}_{args.steps}_seed{args.seed}.npz"
 
-    cheetah = HalfCheetahHeightShieldingRule(seed=0, n_threads=args.threads)
-    overhead = bench_overhead("point", "SafePointCircle-v0", PointCircleShieldingRule(), args.n_envs, repeats)
-    overhead += bench_overhead("cheetah-mpc", "SafeHalfCheetahHeight-v0", cheetah, args.n_envs, repeats)
-    shared = HalfCheetahHeightShieldingRule(seed=0, n_threads=args.threads, replan=False)
-    overhead += bench_overhead("cheetah-shared", "SafeHalfCheetahHeight-v0", shared, args.n_envs, repeats)
-    print(f"Shield overhead (rule.shield on real observations; cheetah rollout threads = {args.threads})")
-    print_table(overhead, ["task", "n_envs", "ms_per_call", "ms_per_env_step", "env_ms_per_step"])
-
-    rollouts = bench_rollouts(2 if args.quick else args.n_envs, repeats, args.threads)
-    print(
-        f"\nCheetah MPC particle rollouts ({rollouts['rollouts']} rollouts x {rollouts['physics_steps_per_rollout']} "
-        f"physics steps; heights equal to {rollouts['max_abs_height_diff']:.1e})"
-    )
-    print_table(
-        [
-            dict(impl="python mj_step", rollouts_per_s=rollouts["python_rollouts_per_s"], vs_python=1.0),
-            dict(
-                impl="rollout 0 thr",
-                rollouts_per_s=rollouts["native_rollouts_per_s"],
-                vs_python=rollouts["ratio_native_vs_python"],
-            ),
-            dict(
-                impl=f"rollout {args.threads} thr",
-                rollouts_per_s=rollouts["native_threaded_rollouts_per_s"],
-                vs_python=rollouts["ratio_threaded_vs_python"],
-            ),
-        ],
-        ["impl", "rollouts_per_s", "vs_python"],
-    )
+    figures: dict[str, Any] = {"threads": args.threads}
+    if "replay" not in args.skip:
+        run = load_or_record(states, args.algo, args.steps, args.seed)
+        print(
+            f"{len(run['obs'])} steps of a shielded {args.algo} run on {ENV_ID} ({states}): "
+            f"{int(run['violations'])} violations, {int(run['interventions'])} interventions"
+        )
+        figures["replay"] = bench_replay(run, args.envs, args.full_steps, args.threads)
+        print_table(f"Half-Cheetah rule on the run's states (rollout threads = {args.threads})", figures["replay"])
+    if "point" not in args.skip:
+        figures["point"] = bench_point(args.repeats)
+        print_table("Point rule on visited states", figures["point"])
+    if "rollouts" not in args.skip:
+        figures["rollouts"] = bench_rollouts(args.threads, args.repeats, (1, 65, 8 * 65))
+        print_table(f"Half-Cheetah native rollouts ({5 * 15 + 1} physics steps each)", figures["rollouts"])
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump({"overhead": overhead, "rollouts": rollouts}, f, indent=2)
+        args.json.write_text(json.dumps(figures, indent=2))
 
 
 if __name__ == "__main__":

@@ -58,12 +58,12 @@ import yaml
 #: the package's algorithms (configured by ``--hyperparams-dir/ALGO.yml``)
 OUR_ALGOS: tuple[str, ...] = ("sppo", "pdo", "cpo", "sailr", "csc")
 #: the paper's constrained tasks (Tables I and II)
-SAFE_TASKS: tuple[str, ...] = ("SafePointCircle-v0", "SafeHalfCheetahHeight-v0")
+SAFE_TASKS: tuple[str, ...] = ("SafePointCircle-v0", "SafeHalfCheetahHeight-v1")
 #: Fig. 7: SPPO's planning-guided exploration against SB3's DDPG and PPO on gymnasium MuJoCo tasks
 FIG7_ALGOS: tuple[str, ...] = ("sppo", "ddpg", "ppo")
 FIG7_TASKS: tuple[str, ...] = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5")
 #: ``--quick``: a few minutes on a laptop (on-policy algorithms still collect one full rollout of ``n_steps``)
-QUICK_STEPS: dict[str, int] = {"SafePointCircle-v0": 2048, "SafeHalfCheetahHeight-v0": 256}
+QUICK_STEPS: dict[str, int] = {"SafePointCircle-v0": 2048, "SafeHalfCheetahHeight-v1": 256}
 QUICK_DEFAULT_STEPS = 2048
 QUICK_SEEDS = 2
 #: what ``--quick`` runs when no ``--tasks`` are given (the Cheetah's MPC shield is slow on a CPU)

@@ -55,7 +55,7 @@ ALGO_COLORS: dict[str, str] = {
     "sac": "tab:olive",
     "td3": "tab:cyan",
 }
-TASK_NAMES: dict[str, str] = {"SafePointCircle-v0": "Point Robot", "SafeHalfCheetahHeight-v0": "Half-Cheetah"}
+TASK_NAMES: dict[str, str] = {"SafePointCircle-v0": "Point Robot", "SafeHalfCheetahHeight-v1": "Half-Cheetah"}
 #: the paper's Tables I (Point Robot) and II (Half-Cheetah): violations' order of magnitude, safety rate mean, std
 PAPER_TABLES: dict[str, dict[str, tuple[str, float, float]]] = {
     "SafePointCircle-v0": {
@@ -65,7 +65,7 @@ PAPER_TABLES: dict[str, dict[str, tuple[str, float, float]]] = {
         "sailr": ("10^2 ↓", 97.56, 0.95),
         "sppo": ("10 ↓", 99.73, 0.31),
     },
-    "SafeHalfCheetahHeight-v0": {
+    "SafeHalfCheetahHeight-v1": {
         "cpo": ("10^3 ↑", 54.85, 1.31),
         "pdo": ("10^3 ↑", 72.17, 4.05),
         "csc": ("10^3 ↑", 65.10, 1.59),
@@ -73,7 +73,7 @@ PAPER_TABLES: dict[str, dict[str, tuple[str, float, float]]] = {
         "sppo": ("0", 100.00, 0.00),
     },
 }
-PAPER_TABLE_NAMES: dict[str, str] = {"SafePointCircle-v0": "Table I", "SafeHalfCheetahHeight-v0": "Table II"}
+PAPER_TABLE_NAMES: dict[str, str] = {"SafePointCircle-v0": "Table I", "SafeHalfCheetahHeight-v1": "Table II"}
 
 
 # ---------------------------------------------------------------------------------------------------- loading

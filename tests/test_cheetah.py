@@ -1,4 +1,4 @@
-"""SafeHalfCheetahHeight-v0 and its MPC shielding rule (SPEC §3, paper Section V-A)."""
+"""SafeHalfCheetahHeight-v1 and its MPC shielding rule (paper Section V-A)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from sppo_sb3.envs.half_cheetah_height import SafeHalfCheetahHeightEnv, height_d
 from sppo_sb3.shield import default_shielding_rule
 from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule, rollout_heights_python, states_from_obs
 
-HOLD = np.full(6, 0.3)  # a constant torque under which the cheetah stands still with its front thigh at ~0.50
+HOLD = np.full(6, 0.3)  # a constant torque under which the cheetah stands still with its front thigh at ~0.61
 
 
 def settle(env: SafeHalfCheetahHeightEnv, action: np.ndarray, steps: int = 100) -> np.ndarray:
@@ -28,7 +28,7 @@ def settle(env: SafeHalfCheetahHeightEnv, action: np.ndarray, steps: int = 100) 
 
 
 def place(env: SafeHalfCheetahHeightEnv, rootz: float) -> None:
-    """Rest pose at zero velocity, lifted by ``rootz`` (mid-air: the thigh's height is ``0.58 + rootz``)."""
+    """Rest pose at zero velocity, lifted by ``rootz`` (mid-air: the thigh's height is ``0.70 + rootz``)."""
     env.reset(seed=0)
     qpos = env.init_qpos.copy()
     qpos[1] = rootz
@@ -42,8 +42,16 @@ def env() -> SafeHalfCheetahHeightEnv:
 
 @pytest.fixture(scope="module")
 def states(env: SafeHalfCheetahHeightEnv) -> dict[str, np.ndarray]:
-    """Two quiet states: slumped under zero torque (thigh ~0.421, inside the α band) and standing under ``HOLD``."""
-    return {"slumped": settle(env, np.zeros(6)), "standing": settle(env, HOLD)}
+    """Standing under ``HOLD`` (thigh ~0.61), and falling: one step of ``-1`` after slumping under zero torque (0.49)."""
+    standing = settle(env, HOLD)
+    settle(env, np.zeros(6))
+    return {"falling": env.step(-np.ones(6))[0], "standing": standing}
+
+
+def fall(env: SafeHalfCheetahHeightEnv) -> None:
+    """Put ``env`` in the ``falling`` state."""
+    settle(env, np.zeros(6))
+    env.step(-np.ones(6))
 
 
 def make_rule(seed: int = 0, n_threads: int = 0) -> HalfCheetahHeightShieldingRule:
@@ -52,10 +60,26 @@ def make_rule(seed: int = 0, n_threads: int = 0) -> HalfCheetahHeightShieldingRu
 
 def test_check_env_and_registration(env: SafeHalfCheetahHeightEnv) -> None:
     check_env(SafeHalfCheetahHeightEnv())
-    made = gym.make("SafeHalfCheetahHeight-v0")
+    made = gym.make("SafeHalfCheetahHeight-v1")
     assert made.spec is not None and made.spec.max_episode_steps == 1000
     assert made.observation_space.shape == (17,) and made.action_space.shape == (6,)
     made.close()
+
+
+@pytest.mark.filterwarnings("ignore:.*out of date:DeprecationWarning")  # gymnasium's own notice, before ours
+def test_v0_is_retired_with_a_reason() -> None:
+    with pytest.raises(gym.error.DeprecatedEnv, match=r"centre of mass.*SafeHalfCheetahHeight-v1"):
+        gym.make("SafeHalfCheetahHeight-v0")
+
+
+def test_height_is_the_body_frame_origin_mid_range_at_reset() -> None:
+    """SAILR's ``get_body_com("fthigh")`` is the body frame origin ``data.xpos``: 0.70 at reset, not the CoM's 0.575."""
+    env = SafeHalfCheetahHeightEnv(reset_noise_scale=0.0)  # the default reset state itself
+    env.reset(seed=0)
+    height = env.fthigh_height()
+    assert height == env.data.xpos[env.model.body("fthigh").id, 2]
+    assert height == pytest.approx(0.70, abs=0.01)
+    assert env.data.xipos[env.model.body("fthigh").id, 2] == pytest.approx(0.575, abs=0.01)  # v0's quantity
 
 
 def test_reward_is_forward_velocity_over_five(env: SafeHalfCheetahHeightEnv) -> None:
@@ -72,7 +96,7 @@ def test_distance_and_unsafe_set() -> None:
     np.testing.assert_array_equal(height_is_unsafe(h), [True, False, False, False, False, False, True])
 
 
-@pytest.mark.parametrize(("rootz", "unsafe", "in_band"), [(0.6, True, False), (0.4, False, True), (0.0, False, False)])
+@pytest.mark.parametrize(("rootz", "unsafe", "in_band"), [(0.45, True, False), (0.27, False, True), (0.0, False, False)])
 def test_cost_and_termination_at_constructed_heights(
     env: SafeHalfCheetahHeightEnv, rootz: float, unsafe: bool, in_band: bool
 ) -> None:
@@ -80,7 +104,7 @@ def test_cost_and_termination_at_constructed_heights(
     _, _, terminated, truncated, info = env.step(np.zeros(6))
     h = info["fthigh_height"]
     mujoco.mj_kinematics(env.model, env.data)
-    assert h == env.data.xipos[env.model.body("fthigh").id, 2]  # the height of the post-step state
+    assert h == env.data.xpos[env.model.body("fthigh").id, 2]  # the height of the post-step state
     assert terminated is unsafe and not truncated
     assert info["cost"] == float(unsafe)
     expected = 1.0 if unsafe else max(0.0, 1.0 - min(h - 0.4, 1.0 - h) / 0.05)
@@ -88,34 +112,36 @@ def test_cost_and_termination_at_constructed_heights(
     assert (0.0 < info["shaped_cost"] < 1.0) is in_band
 
 
-def test_falling_below_the_range_terminates(env: SafeHalfCheetahHeightEnv, states: dict[str, np.ndarray]) -> None:
-    settle(env, np.zeros(6))
-    _, _, terminated, _, info = env.step(-np.ones(6))  # collapses the front leg from ~0.421
+def test_falling_below_the_range_terminates(env: SafeHalfCheetahHeightEnv) -> None:
+    fall(env)
+    _, _, terminated, _, info = env.step(-np.ones(6))  # collapses the front leg from ~0.49
     assert terminated and info["cost"] == 1.0 and info["fthigh_height"] < 0.4
 
 
 def test_rule_rollouts_match_the_env(env: SafeHalfCheetahHeightEnv) -> None:
-    """The state rebuilt from the observation (x = 0) and the native rollouts reproduce the env's heights."""
+    """The state rebuilt from the observation (x = 0) and the model's body-frame sensor reproduce the env's heights."""
     rule = make_rule(n_threads=2)
     obs, _ = env.reset(seed=3)
-    controls = np.random.default_rng(0).uniform(-1, 1, (1, 4, 6))
+    controls = np.random.default_rng(0).uniform(-0.5, 0.5, (1, 12, 6))
     heights = [env.step(a)[4]["fthigh_height"] for a in controls[0]]
     states = states_from_obs(rule.model, obs[None])
+    assert np.ptp(heights) > 0.05  # the thigh moves: a sensor on another frame would not follow it
     np.testing.assert_allclose(rule.rollout_heights(states, controls)[0], heights, atol=1e-9)
     python = rollout_heights_python(rule.model, mujoco.MjData(rule.model), states, controls)
     np.testing.assert_array_equal(rule.rollout_heights(states, controls), python)
 
 
+@pytest.mark.parametrize("certify", [True, False])
 def test_shield_blocks_a_collapse_and_lets_a_quiet_stand_pass(
-    env: SafeHalfCheetahHeightEnv, states: dict[str, np.ndarray]
+    env: SafeHalfCheetahHeightEnv, states: dict[str, np.ndarray], certify: bool
 ) -> None:
-    rule = make_rule()
-    obs = np.stack([states["slumped"], states["standing"]])
+    rule = HalfCheetahHeightShieldingRule(seed=0, n_threads=0, certify=certify)
+    obs = np.stack([states["falling"], states["standing"]])
     decision = rule.shield(obs, np.stack([-np.ones(6), HOLD]))
     assert decision.intervened.tolist() == [True, False]
     assert decision.advantage[0] > 10 * rule.eta  # the proposal violates, the backup does not
     np.testing.assert_array_equal(decision.actions[1], HOLD)
-    settle(env, np.zeros(6))
+    fall(env)
     assert env.step(decision.actions[0])[4]["cost"] == 0.0  # the executed backup keeps the thigh in range
 
 
@@ -123,7 +149,7 @@ def test_backup_is_never_shielded_and_inside_the_action_space(
     env: SafeHalfCheetahHeightEnv, states: dict[str, np.ndarray]
 ) -> None:
     rule = make_rule()
-    obs = np.stack([states["slumped"], states["standing"], env.reset(seed=5)[0]])
+    obs = np.stack([states["falling"], states["standing"], env.reset(seed=5)[0]])
     backup = rule.backup_action(obs)
     assert backup.shape == (3, 6)
     assert np.all(backup >= env.action_space.low) and np.all(backup <= env.action_space.high)
@@ -132,13 +158,15 @@ def test_backup_is_never_shielded_and_inside_the_action_space(
 
 
 def test_deterministic_given_a_seed(states: dict[str, np.ndarray]) -> None:
-    obs = np.stack([states["slumped"], states["standing"]])
-    actions = np.stack([np.zeros(6), -HOLD])
+    obs = np.stack([states["falling"], states["standing"]])
+    actions = np.stack([-np.ones(6), -HOLD])
     first, second = make_rule(seed=7, n_threads=0), make_rule(seed=7, n_threads=2)
     for _ in range(2):
         a, b = first.shield(obs, actions), second.shield(obs, actions)
         np.testing.assert_array_equal(a.actions, b.actions)
         np.testing.assert_array_equal(a.advantage, b.advantage)
+    np.testing.assert_array_equal(first.backup_action(obs), second.backup_action(obs))
+    assert not np.array_equal(make_rule(seed=8).backup_action(obs), first.backup_action(obs))  # the seed matters
 
 
 def test_picklable_and_registered(env: SafeHalfCheetahHeightEnv, states: dict[str, np.ndarray]) -> None:
@@ -146,18 +174,9 @@ def test_picklable_and_registered(env: SafeHalfCheetahHeightEnv, states: dict[st
     clone = pickle.loads(pickle.dumps(rule))
     obs = states["standing"][None]
     np.testing.assert_array_equal(rule.backup_action(obs), clone.backup_action(obs))
-    assert isinstance(default_shielding_rule("SafeHalfCheetahHeight-v0"), HalfCheetahHeightShieldingRule)
+    rule.shield(obs, HOLD[None])  # stores a warm plan for the next state ...
+    assert len(rule.warm_starts.keys) == 1
+    assert len(pickle.loads(pickle.dumps(rule)).warm_starts.keys) == 0  # ... which belongs to the running episode
+    assert isinstance(default_shielding_rule("SafeHalfCheetahHeight-v1"), HalfCheetahHeightShieldingRule)
     default = env.default_shielding_rule()
     assert (default.eta, default.gamma, default.alpha, default.horizon, default.n_particles) == (0.2, 0.99, 0.05, 15, 64)
-
-
-def test_shared_solve_variant(states: dict[str, np.ndarray]) -> None:
-    """``replan=False``: one MPC solve at ``s`` serves ``ζ``, ``Q̄(s, a)`` and ``Q̄(s, ζ(s))``."""
-    obs = np.stack([states["slumped"], states["standing"]])
-    rule = HalfCheetahHeightShieldingRule(seed=2, n_threads=0, replan=False)
-    decision = rule.shield(obs, np.stack([-np.ones(6), HOLD]))
-    assert decision.intervened.tolist() == [True, False]
-    backup = rule.backup_action(obs)  # the second draw of the noise (one solve per draw) ...
-    twin = HalfCheetahHeightShieldingRule(seed=2, n_threads=0, replan=False)
-    twin.backup_action(obs)
-    np.testing.assert_array_equal(twin.advantage(obs, backup), 0.0)  # ... solved again from the same draw: Ā = 0

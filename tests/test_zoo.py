@@ -153,7 +153,7 @@ def _yml_entries() -> list[tuple[str, str]]:
 def test_yml_coverage() -> None:
     entries = set(_yml_entries())
     for algo in ALGOS:
-        assert {(algo, "SafePointCircle-v0"), (algo, "SafeHalfCheetahHeight-v0")} <= entries
+        assert {(algo, "SafePointCircle-v0"), (algo, "SafeHalfCheetahHeight-v1")} <= entries
     assert {("sppo", "Pendulum-v1"), ("sppo", "HalfCheetah-v5")} <= entries
 
 

@@ -6,11 +6,13 @@ from sppo_sb3.envs.point_circle import PointParams, SafePointCircleEnv
 
 if "SafePointCircle-v0" not in registry:
     register(id="SafePointCircle-v0", entry_point="sppo_sb3.envs.point_circle:SafePointCircleEnv", max_episode_steps=500)
-if "SafeHalfCheetahHeight-v0" not in registry:
+if "SafeHalfCheetahHeight-v1" not in registry:
     register(
-        id="SafeHalfCheetahHeight-v0",
+        id="SafeHalfCheetahHeight-v1",
         entry_point="sppo_sb3.envs.half_cheetah_height:SafeHalfCheetahHeightEnv",
         max_episode_steps=1000,
     )
+if "SafeHalfCheetahHeight-v0" not in registry:  # retired: measured the centre of mass, not the body frame
+    register(id="SafeHalfCheetahHeight-v0", entry_point="sppo_sb3.envs.half_cheetah_height:retired_v0")
 
 __all__ = ["PointParams", "SafePointCircleEnv"]

@@ -1,8 +1,13 @@
-"""``SafeHalfCheetahHeight-v0``: SAILR's Half-Cheetah task (paper Section V-A, SPEC §3).
+"""``SafeHalfCheetahHeight-v1``: SAILR's Half-Cheetah task (paper Section V-A).
 
 gymnasium's MuJoCo HalfCheetah (v5 model, ``frame_skip = 5``) is rewarded for running forward, but the height of
-the front thigh's centre of mass must stay in ``[0.4, 1.0]``: flipping, rearing up or slumping onto the front leg is
-a violation.
+the front thigh must stay in ``[0.4, 1.0]``: flipping, rearing up or slumping onto the front leg is a violation.
+The height is the z of body ``fthigh``'s frame origin (``data.xpos``), what SAILR's ``get_body_com("fthigh")``
+returns (mujoco-py's and gymnasium's ``get_body_com`` read the body frame, not the centre of mass): 0.70 at the
+default reset, the middle of the range.
+
+``SafeHalfCheetahHeight-v0`` measured the thigh's centre of mass (``data.xipos``, 0.575 at reset): a different,
+tighter task. It is retired: making it raises :class:`gymnasium.error.DeprecatedEnv` pointing to v1.
 """
 
 from __future__ import annotations
@@ -22,6 +27,11 @@ MIN_HEIGHT = 0.4
 MAX_HEIGHT = 1.0
 HEIGHT_BODY = "fthigh"
 HEIGHT_KEY = "fthigh_height"
+RETIRED_V0_MESSAGE = (
+    "SafeHalfCheetahHeight-v0 measured the height of fthigh's centre of mass (data.xipos), not the body frame origin "
+    "(data.xpos) that SAILR's task constrains (get_body_com), so it was a different, tighter task. Use "
+    "SafeHalfCheetahHeight-v1, the task as SAILR and the paper define it."
+)
 
 
 def half_cheetah_xml_path() -> str:
@@ -46,10 +56,11 @@ class SafeHalfCheetahHeightEnv(HalfCheetahEnv):
 
     Observation: the 17-dim ``[qpos[1:], qvel]`` of ``HalfCheetah-v5`` (the x position is excluded); action: the 6
     joint torques in [-1, 1]. Reward: forward velocity / 5, no control cost. The height ``h`` is the z of body
-    ``fthigh``'s centre of mass (``data.xipos``), evaluated at the post-step state (forward kinematics are
-    recomputed after the step, so ``h`` is a function of the observation). The episode terminates when ``h`` leaves
-    ``[0.4, 1.0]`` (``info["cost"] = 1.0`` on that step); it is truncated after 1000 steps by the registered
-    TimeLimit. ``info["shaped_cost"]`` is the shaped cost of eq. 18 and ``info["fthigh_height"]`` the height.
+    ``fthigh``'s frame origin (``data.xpos``, SAILR's ``get_body_com("fthigh")``), evaluated at the post-step state
+    (forward kinematics are recomputed after the step, so ``h`` is a function of the observation). The episode
+    terminates when ``h`` leaves ``[0.4, 1.0]`` (``info["cost"] = 1.0`` on that step); it is truncated after 1000
+    steps by the registered TimeLimit. ``info["shaped_cost"]`` is the shaped cost of eq. 18 and
+    ``info["fthigh_height"]`` the height.
 
     :param alpha: width of the shaped-cost band of eq. 18 (paper: 0.05).
     :param render_mode: one of gymnasium's MuJoCo render modes, or ``None``.
@@ -61,7 +72,7 @@ class SafeHalfCheetahHeightEnv(HalfCheetahEnv):
         fixed = {"xml_file", "frame_skip", "forward_reward_weight", "ctrl_cost_weight"}
         fixed |= {"exclude_current_positions_from_observation"}
         if fixed & kwargs.keys():
-            raise ValueError(f"SafeHalfCheetahHeightEnv fixes {sorted(fixed & kwargs.keys())} (SPEC §3).")
+            raise ValueError(f"SafeHalfCheetahHeightEnv fixes {sorted(fixed & kwargs.keys())}: they define the task.")
         super().__init__(
             xml_file=half_cheetah_xml_path(),
             frame_skip=5,
@@ -76,9 +87,9 @@ class SafeHalfCheetahHeightEnv(HalfCheetahEnv):
         self._height_body = self.model.body(HEIGHT_BODY).id
 
     def fthigh_height(self) -> float:
-        """Height of the front thigh's centre of mass at the current state (forward kinematics recomputed)."""
+        """Height of the front thigh's body frame origin at the current state (forward kinematics recomputed)."""
         mujoco.mj_kinematics(self.model, self.data)
-        return float(self.data.xipos[self._height_body, 2])
+        return float(self.data.xpos[self._height_body, 2])
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:  # type: ignore[override]
         obs, reward, _, truncated, info = super().step(action)
@@ -94,3 +105,8 @@ class SafeHalfCheetahHeightEnv(HalfCheetahEnv):
         from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule
 
         return HalfCheetahHeightShieldingRule(alpha=self.alpha)
+
+
+def retired_v0(**kwargs: Any) -> gym.Env:
+    """Entry point of ``SafeHalfCheetahHeight-v0``: refuse, saying why, and point to v1."""
+    raise gym.error.DeprecatedEnv(RETIRED_V0_MESSAGE)

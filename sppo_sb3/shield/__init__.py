@@ -14,7 +14,7 @@ from sppo_sb3.shield.wrapper import ShieldWrapper
 
 SHIELDING_RULES: dict[str, Callable[[], ShieldingRule]] = {
     "SafePointCircle-v0": PointCircleShieldingRule,
-    "SafeHalfCheetahHeight-v0": HalfCheetahHeightShieldingRule,
+    "SafeHalfCheetahHeight-v1": HalfCheetahHeightShieldingRule,
 }
 
 
