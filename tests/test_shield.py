@@ -286,7 +286,7 @@ def test_backup_out_of_bounds_is_a_clear_error() -> None:
 
 def test_backup_wrong_shape_is_a_clear_error() -> None:
     env = ShieldWrapper(gym.make("SafePointCircle-v0"), BadBackupRule(np.zeros(3)))
-    with pytest.raises(ValueError, match=r"shape \(3,\).*\(2,\)"):
+    with pytest.raises(ValueError, match=r"shape \(2, 3\).*return shape \(2, 2\)"):
         env.reset(seed=0)
 
 

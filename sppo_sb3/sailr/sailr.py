@@ -24,6 +24,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 from sppo_sb3.common.on_policy import CostRolloutBuffer, SafeOnPolicyMixin
 from sppo_sb3.common.safety import INTERVENED_KEY
 from sppo_sb3.shield import ShieldingRule, ShieldWrapper, resolve_shielding_rule
+from sppo_sb3.shield.persistence import ShieldedLoadMixin
 
 SelfSAILR = TypeVar("SelfSAILR", bound="SAILR")
 
@@ -59,7 +60,7 @@ def shield_vec_env(env: VecEnv, rule: ShieldingRule) -> VecEnv:
     return env
 
 
-class SAILR(SafeOnPolicyMixin, PPO):
+class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
     """PPO under an advantage-based shield, learning in the absorbing MDP (Wagener et al. 2021, Alg. 1).
 
     The training envs are wrapped in :class:`~sppo_sb3.shield.ShieldWrapper` at the gym level (see
@@ -73,6 +74,9 @@ class SAILR(SafeOnPolicyMixin, PPO):
     :param shield: the shielding rule; ``"auto"``: the rule registered for the env's id
         (:func:`~sppo_sb3.shield.default_shielding_rule`); another string: the rule registered for that env id;
         ``None``: the envs are already wrapped in ``ShieldWrapper`` (else SAILR runs as plain PPO, with a warning).
+        ``"auto"`` without a registered rule is an error. The rule in use is ``model.shield_rule``; it is saved with
+        the model, and ``SAILR.load`` raises where it cannot be rebuilt: pass it with
+        ``custom_objects={"shield_rule": rule}``, or ``custom_objects={"shield": None}`` to load unshielded.
     :param penalty: reward ``R̃ <= 0`` of the absorbing transition; ``None``: the rule's ``penalty`` (default -1).
     :param learning_rate: learning rate.
     :param n_steps: steps per env per rollout.

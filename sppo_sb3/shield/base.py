@@ -8,15 +8,26 @@ A rule answers two questions on a batch of raw (un-normalised) observations:
 
 Everything else — the advantage ``Ā``, the shielding set ``I`` and the shielded action of eqs. 5/12 — follows here,
 once, for every algorithm of the package. Subclass :class:`ShieldingRule` to bring your own task.
+
+The shield fails closed: a state, proposal or ``Q̄`` it cannot evaluate (NaN, inf) is treated as unsafe and the
+backup action is executed; where the backup action itself is not finite, :class:`ShieldFailure` is raised. The
+proposal is never executed on a value the rule could not compute.
 """
 
 from __future__ import annotations
 
+import functools
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
+
+
+class ShieldFailure(ValueError):
+    """The shield could not compute a safe action: the backup action ``ζ(s)`` itself is not finite."""
 
 
 @dataclass
@@ -25,7 +36,7 @@ class ShieldDecision:
 
     :param actions: the executed actions ``a_safe`` (proposed where allowed, backup where shielded).
     :param intervened: ``True`` where ``(s, a) ∈ I`` and the backup action replaced the proposal.
-    :param advantage: ``Ā(s, a)`` of each proposal.
+    :param advantage: ``Ā(s, a)`` of each proposal (NaN where it could not be computed).
     """
 
     actions: np.ndarray
@@ -34,15 +45,51 @@ class ShieldDecision:
 
 
 def in_shielding_set(advantage: np.ndarray, eta: float) -> np.ndarray:
-    """Membership test of the shielding set: ``(s, a) ∈ I  ⇔  Ā(s, a) > η`` (Section III-B, used by eq. 12)."""
-    return np.asarray(advantage) > eta
+    """Membership test of the shielding set: ``(s, a) ∈ I  ⇔  Ā(s, a) > η`` (Section III-B, used by eq. 12).
+
+    A non-finite advantage (NaN, ±inf: a ``Q̄`` the rule could not compute) counts as inside ``I``: fail closed.
+    """
+    advantage = np.asarray(advantage)
+    return ~np.isfinite(advantage) | (advantage > eta)
+
+
+def finite_rows(array: np.ndarray) -> np.ndarray:
+    """``True`` for the rows of a ``(B, ...)`` array whose entries are all finite."""
+    return np.isfinite(array.reshape(len(array), -1)).all(axis=1)
+
+
+ShieldMethod = Callable[[Any, np.ndarray, np.ndarray], ShieldDecision]
+
+
+def fails_closed(shield: ShieldMethod) -> ShieldMethod:
+    """Guard a ``shield`` method so that no value it could not compute lets a proposal through (eq. 12, fail closed).
+
+    After ``shield`` decides, every row whose observation, proposal or advantage is not finite is shielded; the
+    executed action of every shielded row must be finite, else :class:`ShieldFailure` is raised. Applied to
+    :meth:`ShieldingRule.shield` and, automatically, to every subclass that overrides it.
+    """
+
+    @functools.wraps(shield)
+    def guarded(rule: ShieldingRule, obs: np.ndarray, actions: np.ndarray) -> ShieldDecision:
+        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
+        actions = np.asarray(actions, dtype=np.float64).reshape(len(obs), -1)
+        decision = shield(rule, obs, actions)
+        return rule.close_failures(obs, actions, decision)
+
+    guarded.fails_closed = True  # type: ignore[attr-defined]
+    return guarded
 
 
 class ShieldingRule(ABC):
     """Advantage-based shielding rule ``G = (Q̄, ζ, Ā, η, I)`` (Section III-B).
 
     With ``η >= 0`` the backup action is never shielded (Proposition 1), so the shielded policy always has an
-    admissible action.
+    admissible action. The shield fails closed (see the module docstring); a subclass that overrides :meth:`shield`
+    keeps that guarantee (:func:`fails_closed` wraps the override).
+
+    The contract of a subclass: :meth:`cost_value` returns a float array of shape ``(B,)``, :meth:`backup_action` a
+    float array of shape ``(B, act_dim)`` inside the action space, both from raw observations ``(B, obs_dim)`` and
+    actions in the env's units. Outputs of another shape are rejected with a message that names the fix.
 
     :param eta: advantage threshold ``η``; ``(s, a)`` is shielded iff ``Ā(s, a) > η``.
     :param penalty: reward ``R̃ <= 0`` of the absorbing transition that replaces a shielded step in the
@@ -57,6 +104,12 @@ class ShieldingRule(ABC):
         self.eta = eta
         self.penalty = penalty
 
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        override = cls.__dict__.get("shield")
+        if override is not None and not getattr(override, "fails_closed", False):
+            cls.shield = fails_closed(override)  # type: ignore[method-assign]
+
     @abstractmethod
     def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """``Q̄(s, a)`` for a batch: ``obs`` of shape ``(B, obs_dim)``, ``actions`` ``(B, act_dim)`` → ``(B,)``."""
@@ -68,41 +121,102 @@ class ShieldingRule(ABC):
     def advantage(self, obs: np.ndarray, actions: np.ndarray, backup: np.ndarray | None = None) -> np.ndarray:
         """``Ā(s, a) = Q̄(s, a) - Q̄(s, ζ(s))``, both terms evaluated in one batched call of :meth:`cost_value`."""
         if backup is None:
-            backup = self.backup_action(obs)
+            backup = self.checked_backup(obs, actions.shape[1])
         n = len(obs)
-        q = self.cost_value(np.concatenate([obs, obs]), np.concatenate([actions, backup]))
+        q = self.checked_cost_value(np.concatenate([obs, obs]), np.concatenate([actions, backup]))
         adv = q[:n] - q[n:]
         # Ā(s, ζ(s)) = 0 by definition (Proposition 1); a batched network may differ in the last bit by row position
         adv[np.all(actions == backup, axis=1)] = 0.0
         return adv
 
+    @fails_closed
     def shield(self, obs: np.ndarray, actions: np.ndarray) -> ShieldDecision:
         """Shielded action of eq. 12: keep ``a`` where ``(s, a) ∉ I``, else execute the backup action ``a_ζ``.
 
         :param obs: ``(B, obs_dim)`` raw observations.
         :param actions: ``(B, act_dim)`` proposed actions in env action units.
+        :raises ShieldFailure: where a shielded row's backup action is not finite.
         """
-        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
-        actions = np.asarray(actions, dtype=np.float64).reshape(len(obs), -1)
-        backup = self.backup_action(obs)
-        adv = self.advantage(obs, actions, backup)
+        backup = self.checked_backup(obs, actions.shape[1])
+        adv = np.full(len(obs), np.nan)
+        known = finite_rows(obs) & finite_rows(actions)  # the rest is shielded without asking the rule
+        if known.any():
+            adv[known] = self.advantage(obs[known], actions[known], backup[known])
         intervened = in_shielding_set(adv, self.eta)
         safe = np.where(intervened[:, None], backup, actions)
         return ShieldDecision(actions=safe, intervened=intervened, advantage=adv)
 
+    def close_failures(self, obs: np.ndarray, actions: np.ndarray, decision: ShieldDecision) -> ShieldDecision:
+        """Fail closed after a decision: shield every row with a non-finite observation, proposal or ``Ā``.
+
+        :param obs: ``(B, obs_dim)`` raw observations.
+        :param actions: ``(B, act_dim)`` proposed actions.
+        :param decision: the decision of :meth:`shield`.
+        :raises ShieldFailure: where a shielded row's executed (backup) action is not finite.
+        """
+        executed = np.array(decision.actions, dtype=np.float64).reshape(actions.shape)
+        advantage = np.asarray(decision.advantage, dtype=np.float64).reshape(len(obs))
+        unknown = ~(finite_rows(obs) & finite_rows(actions) & np.isfinite(advantage))
+        missing = unknown & ~np.asarray(decision.intervened, dtype=bool)
+        if missing.any():
+            executed[missing] = self.checked_backup(obs[missing], actions.shape[1])
+        intervened = np.asarray(decision.intervened, dtype=bool) | unknown
+        broken = intervened & ~finite_rows(executed)
+        if broken.any():
+            raise ShieldFailure(
+                f"{type(self).__name__} cannot shield {int(broken.sum())} of {len(obs)} states: the backup action is "
+                f"not finite there (observations {obs[broken][:3].tolist()}...). The shield never executes a proposal "
+                "it could not evaluate. Check the env's observations for NaN/inf (stable_baselines3's VecCheckNan "
+                "finds the step) and that backup_action returns finite actions for every valid observation."
+            )
+        return ShieldDecision(actions=executed, intervened=intervened, advantage=advantage)
+
+    # --- checks of the rule's outputs ---------------------------------------------------------------------------
+
+    def checked_backup(self, obs: np.ndarray, act_dim: int) -> np.ndarray:
+        """``ζ(obs)`` as a ``(B, act_dim)`` float array; a wrong shape or type is an error that names the fix."""
+        backup = self.backup_action(obs)
+        name = f"{type(self).__name__}.backup_action"
+        check_array(backup, name)
+        expected = (len(obs), act_dim)
+        if backup.shape == expected:
+            return backup.astype(np.float64, copy=False)
+        if backup.shape == (len(obs),) and act_dim == 1:
+            fix = "add the action axis (e.g. return a[:, None])"
+        else:
+            fix = f"return one action of {act_dim} values per observation (is the rule written for another task?)"
+        raise ValueError(f"{name} returned shape {backup.shape} for {len(obs)} observations; return shape {expected}: {fix}.")
+
+    def checked_cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """``Q̄(obs, actions)`` as a ``(B,)`` float array; a wrong shape or type is an error that names the fix."""
+        q = self.cost_value(obs, actions)
+        name = f"{type(self).__name__}.cost_value"
+        check_array(q, name)
+        n = len(obs)
+        if q.shape == (n,):
+            return q.astype(np.float64, copy=False)
+        fix = "drop the last axis (e.g. q[:, 0])" if q.shape == (n, 1) else "return one value per (observation, action) pair"
+        raise ValueError(f"{name} returned shape {q.shape} for {n} (observation, action) pairs; return shape ({n},): {fix}.")
+
     def check_action_space(self, action_space: gym.spaces.Space, obs: np.ndarray) -> None:
-        """Fail early, with a clear message, when the backup policy is not usable in ``action_space``.
+        """Probe the rule once on real observations (e.g. the first ``reset``'s) and fail early with a clear message.
+
+        Checks that ``ζ(s)`` and ``Q̄(s, a)`` have the contract's shapes and dtypes (:meth:`checked_backup`,
+        :meth:`checked_cost_value`), that ``ζ(s)`` lies in ``action_space`` and that ``ζ(s)``, ``Q̄(s, ζ(s))`` and
+        ``Q̄(s, a)`` at the action space's centre are finite.
 
         :param action_space: the env's action space.
-        :param obs: a batch of valid observations to probe the backup policy with.
+        :param obs: a batch of valid raw observations to probe the rule with.
         """
         if not isinstance(action_space, gym.spaces.Box):
             raise TypeError(f"Shielding rules act on Box action spaces, got {action_space}.")
-        backup = self.backup_action(np.asarray(obs, dtype=np.float64).reshape(len(obs), -1))
-        if backup.shape[1:] != action_space.shape:
+        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
+        probe = np.concatenate([obs, obs])  # at least two rows: a squeezed batch axis shows up
+        backup = self.checked_backup(probe, int(np.prod(action_space.shape)))
+        if not finite_rows(backup).all():
             raise ValueError(
-                f"{type(self).__name__}.backup_action returns actions of shape {backup.shape[1:]}, but the env's "
-                f"action space has shape {action_space.shape}: the rule was written for another task."
+                f"{type(self).__name__}.backup_action returned NaN/inf at the env's observations {obs.tolist()}: the "
+                "backup policy must return a finite action in every state the env can reach."
             )
         low, high = action_space.low - 1e-6, action_space.high + 1e-6
         if np.any(backup < low) or np.any(backup > high):
@@ -110,3 +224,18 @@ class ShieldingRule(ABC):
                 f"{type(self).__name__}.backup_action returned actions outside the env's action space "
                 f"[{action_space.low}, {action_space.high}]: clip the backup policy's output to the bounds."
             )
+        centre = np.broadcast_to((action_space.low + action_space.high) / 2.0, backup.shape)
+        q = self.checked_cost_value(np.concatenate([probe, probe]), np.concatenate([backup, centre]))
+        if not np.isfinite(q).all():
+            raise ValueError(
+                f"{type(self).__name__}.cost_value returned NaN/inf at the env's observations {obs.tolist()}: Q̄ must "
+                "be finite for every valid (observation, action); the shield would intervene at every step."
+            )
+
+
+def check_array(value: Any, name: str) -> None:
+    """Reject an output that is not a real numeric numpy array, with a message that says what to return."""
+    if not isinstance(value, np.ndarray):
+        raise TypeError(f"{name} returned a {type(value).__name__}; return a numpy array (e.g. np.asarray(x)).")
+    if not (np.issubdtype(value.dtype, np.floating) or np.issubdtype(value.dtype, np.integer)):
+        raise TypeError(f"{name} returned an array of dtype {value.dtype}; return floats (e.g. x.astype(np.float64)).")

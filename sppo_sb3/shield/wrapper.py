@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, SupportsFloat
+from typing import Any, Literal, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -11,32 +11,67 @@ from sppo_sb3.common.safety import INTERVENED_KEY
 from sppo_sb3.shield.base import ShieldingRule
 
 PROPOSED_ACTION_KEY = "proposed_action"
+EXECUTED_ACTION_KEY = "executed_action"
 ADVANTAGE_KEY = "shield_advantage"
+ABSORBED_KEY = "shield_absorbed"
+ENV_REWARD_KEY = "env_reward"
+
+OnIntervention = Literal["execute", "absorb"]
 
 
 class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
     """Pass every action through the rule's shield (eq. 12) before the env executes it.
 
+    The env always executes the safe action. What the learner sees on an intervention depends on ``on_intervention``:
+
+    - ``"execute"`` (default): the step of the executed backup action, as if the learner's action had produced it.
+      The learner then learns in the *shielded* env, where a proposal means "this action, passed through the
+      shield"; an off-policy learner's replay buffer stores the proposal with the backup's transition, and nothing
+      tells it that the proposal was rejected.
+    - ``"absorb"``: SAILR's absorbing MDP (eq. 7): the step ends the episode (``terminated=True``) with reward
+      ``R̃`` (the rule's ``penalty``), so the learner stores ``(s, proposal, R̃, terminal)`` — the proposal is
+      what leads to ``s†`` — and the episode restarts at the next ``reset``. The env's reward of the executed step
+      is in ``info["env_reward"]``.
+
     The step's info carries ``info["shield_intervened"]`` (whether the backup replaced the action),
-    ``info["proposed_action"]`` (what the agent asked for) and ``info["shield_advantage"]`` (``Ā(s, a)``).
-    The executed action is the safe one.
+    ``info["proposed_action"]`` (what the agent asked for, clipped to the action space), ``info["executed_action"]``
+    (what the env executed), ``info["shield_advantage"]`` (``Ā(s, a)``) and ``info["shield_absorbed"]`` (the step
+    was turned into the absorbing terminal). The rule is probed once, at the first ``reset``
+    (:meth:`ShieldingRule.check_action_space`).
 
     :param env: the env to protect; its observations are what the rule reads.
     :param rule: the shielding rule.
+    :param on_intervention: ``"execute"`` or ``"absorb"`` (see above).
+    :param penalty: ``R̃ <= 0`` of the absorbing step; ``None``: the rule's ``penalty``.
     """
 
-    def __init__(self, env: gym.Env, rule: ShieldingRule) -> None:
+    def __init__(
+        self,
+        env: gym.Env,
+        rule: ShieldingRule,
+        on_intervention: OnIntervention = "execute",
+        penalty: float | None = None,
+    ) -> None:
         super().__init__(env)
         if not isinstance(env.action_space, gym.spaces.Box):
             raise TypeError(f"ShieldWrapper needs a Box action space, got {env.action_space}.")
+        if on_intervention not in ("execute", "absorb"):
+            raise ValueError(f"on_intervention must be 'execute' or 'absorb', got {on_intervention!r}.")
+        if penalty is not None and penalty > 0:
+            raise ValueError(f"The absorbing penalty R̃ must be <= 0 (eq. 7), got {penalty}.")
         self.rule = rule
+        self.on_intervention = on_intervention
+        self.penalty = rule.penalty if penalty is None else penalty
         self._box: gym.spaces.Box = env.action_space
         self._obs: np.ndarray | None = None
+        self._checked = False
 
     def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
         obs, info = self.env.reset(**kwargs)
         self._obs = np.asarray(obs)
-        self.rule.check_action_space(self.env.action_space, self._obs[None])
+        if not self._checked:
+            self.rule.check_action_space(self.env.action_space, self._obs[None])
+            self._checked = True
         return obs, info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
@@ -46,8 +81,14 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         decision = self.rule.shield(self._obs[None], proposed[None])
         safe = decision.actions[0].astype(self._box.dtype)
         obs, reward, terminated, truncated, info = self.env.step(safe)
-        info[INTERVENED_KEY] = bool(decision.intervened[0])
+        intervened = bool(decision.intervened[0])
+        info[INTERVENED_KEY] = intervened
         info[PROPOSED_ACTION_KEY] = proposed
+        info[EXECUTED_ACTION_KEY] = safe
         info[ADVANTAGE_KEY] = float(decision.advantage[0])
+        info[ABSORBED_KEY] = intervened and self.on_intervention == "absorb"
         self._obs = np.asarray(obs)
+        if info[ABSORBED_KEY]:
+            info[ENV_REWARD_KEY] = reward
+            return obs, self.penalty, True, False, info
         return obs, reward, terminated, truncated, info

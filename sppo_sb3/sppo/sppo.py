@@ -24,6 +24,7 @@ from sppo_sb3.common.compile import CompiledFunction, CompileMode, check_compile
 from sppo_sb3.common.costs import costs_from_infos
 from sppo_sb3.common.safety import INTERVENED_KEY, SafetyMetrics
 from sppo_sb3.shield import ShieldingRule, resolve_shielding_rule
+from sppo_sb3.shield.persistence import ShieldedLoadMixin
 from sppo_sb3.shield.wrapper import PROPOSED_ACTION_KEY
 from sppo_sb3.sppo.buffers import AbsorbingMode, ShieldedReplayBuffer
 from sppo_sb3.sppo.optim import init_optimizer_state, supports_tensor_step
@@ -53,7 +54,7 @@ def check_spaces(observation_space: spaces.Space, action_space: spaces.Space) ->
         )
 
 
-class SPPO(OffPolicyAlgorithm):
+class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
     """Shielded Planning guided Policy Optimization (Wang, Qin & Kan).
 
     Defaults are TD-MPC's (SPEC §2). ``planner_kwargs`` are fields of :class:`MPPIConfig`, ``topo_kwargs`` fields of
@@ -71,7 +72,10 @@ class SPPO(OffPolicyAlgorithm):
     :param gradient_steps: TOPO updates per rollout.
     :param horizon: length ``H`` of the sequences TOPO trains on.
     :param target_update_interval: update the EMA target every this many TOPO updates.
-    :param shield: a :class:`ShieldingRule`, ``"auto"`` (the task's registered rule, none if it has none) or ``None``.
+    :param shield: a :class:`ShieldingRule`, ``"auto"`` (the task's registered rule; where there is none, SPPO warns
+        and runs unshielded) or ``None`` (unshielded, on purpose). The rule in use is :attr:`shield_rule` (``None``:
+        unshielded); it is saved with the model, and ``SPPO.load`` raises where it cannot be rebuilt: pass it with
+        ``custom_objects={"shield_rule": rule}``, or ``custom_objects={"shield": None}`` to load unshielded.
     :param absorbing: what ``B̃`` records after an intervention. ``"terminate"`` is the paper's ``M̃`` (nothing more of
         the episode); ``"restart"`` (default) makes every intervention an absorbing terminal and restarts ``B̃`` at the
         next real state. Measured on SafePointCircle-v0 (6000 steps, seeds 0 and 1, both with 0 violations):
@@ -237,15 +241,17 @@ class SPPO(OffPolicyAlgorithm):
         progress_bar: bool = False,
     ) -> tuple[int, BaseCallback]:
         self._setup_replay_buffer()
-        if self.shield_rule is not None and self.env is not None:
-            self.shield_rule.check_action_space(self.action_space, self.env.observation_space.sample()[None])
         assert self.safety_metrics is not None
         if reset_num_timesteps or self._last_obs is None:  # SB3 resets the envs: running episodes start over
             self.safety_metrics.restart_episodes()
             self._plan_mean = self.planner.initial_mean(self.n_envs)
         elif self._plan_mean.shape[0] != self.n_envs:  # set_env with another number of envs
             self._plan_mean = self.planner.initial_mean(self.n_envs)
-        return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+        setup = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+        if self.shield_rule is not None:  # probe the rule on the env's real observations before it decides anything
+            raw_obs = self._last_original_obs if self._vec_normalize_env is not None else self._last_obs
+            self.shield_rule.check_action_space(self.action_space, raw_obs)  # type: ignore[arg-type]
+        return setup
 
     # ------------------------------------------------------------------ exploration phase (Alg. 1 lines 3–9)
     def _propose_actions(self, obs: np.ndarray, learning_starts: int) -> np.ndarray:
