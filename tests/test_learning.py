@@ -16,6 +16,7 @@ def test_sppo_learns_pendulum_swing_up():
     model = SPPO(
         "TOLDPolicy",
         "Pendulum-v1",
+        shield=None,
         learning_starts=300,
         batch_size=128,
         horizon=3,

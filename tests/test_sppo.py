@@ -174,7 +174,7 @@ def test_topo_loss_decreases_on_a_fixed_batch():
 
 def test_actions_stay_inside_asymmetric_bounds():
     env = gym.wrappers.RescaleAction(gym.make("Pendulum-v1"), np.float32(-0.5), np.float32(1.5))
-    model = tiny_sppo(env, learning_starts=20).learn(40)
+    model = tiny_sppo(env, learning_starts=20, shield=None).learn(40)
     actions = np.stack([model.predict(env.observation_space.sample())[0] for _ in range(20)])
     assert actions.min() >= -0.5 and actions.max() <= 1.5
     assert isinstance(model.replay_buffer, ShieldedReplayBuffer)
@@ -228,7 +228,7 @@ def test_nan_observations_stop_training_with_a_clear_error():
     env = _InfiniteBounds()
     env.action_space = gym.spaces.Box(-1, 1, (1,), np.float32)
     with pytest.raises(ValueError, match="non-finite observation"):
-        tiny_sppo(env).learn(10)
+        tiny_sppo(env, shield=None).learn(10)
 
 
 def test_a_shield_on_an_env_without_cost_is_a_clear_error():

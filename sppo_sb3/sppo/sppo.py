@@ -57,7 +57,7 @@ def check_spaces(observation_space: spaces.Space, action_space: spaces.Space) ->
 class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
     """Shielded Planning guided Policy Optimization (Wang, Qin & Kan).
 
-    Defaults are TD-MPC's (SPEC §2). ``planner_kwargs`` are fields of :class:`MPPIConfig`, ``topo_kwargs`` fields of
+    Defaults are TD-MPC's (Hansen et al. 2022). ``planner_kwargs`` are fields of :class:`MPPIConfig`, ``topo_kwargs`` fields of
     :class:`TOPOConfig`; ``policy_kwargs`` set the TOLD sizes (``latent_dim``, ``encoder_dim``, ``hidden_dim``).
 
     :param policy: ``"TOLDPolicy"`` (alias ``"MlpPolicy"``) or a policy class.
