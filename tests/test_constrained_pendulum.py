@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 import warnings
-from pathlib import Path
+from collections.abc import Callable
 from types import ModuleType
 
 import gymnasium as gym
@@ -17,19 +15,10 @@ from sppo_sb3 import SPPO
 from sppo_sb3.common.costs import COST_KEY
 from sppo_sb3.shield import ShieldWrapper
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "constrained_pendulum.py"
-
 
 @pytest.fixture(scope="module")
-def example() -> ModuleType:
-    name = "constrained_pendulum"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, EXAMPLE)
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
+def example(load_example: Callable[[str], ModuleType]) -> ModuleType:
+    return load_example("constrained_pendulum")
 
 
 def test_env_passes_sb3_check_env(example: ModuleType) -> None:

@@ -2,9 +2,7 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
-from pathlib import Path
+from collections.abc import Callable
 from types import ModuleType
 
 import gymnasium as gym
@@ -16,19 +14,10 @@ from stable_baselines3.common.env_checker import check_env
 import sppo_sb3  # noqa: F401
 from sppo_sb3.shield import SHIELDING_RULES, ShieldWrapper, default_shielding_rule
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "custom_task_shield.py"
-
 
 @pytest.fixture(scope="module")
-def example() -> ModuleType:
-    name = "custom_task_shield"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(name, EXAMPLE)
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-    return sys.modules[name]
+def example(load_example: Callable[[str], ModuleType]) -> ModuleType:
+    return load_example("custom_task_shield")
 
 
 def test_env_passes_sb3_check_env(example: ModuleType) -> None:
