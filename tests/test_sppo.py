@@ -277,3 +277,18 @@ def test_evaluation_on_vec_envs_of_any_size(train_envs):
         rewards, lengths = evaluate_policy(model, env, n_eval_episodes=eval_envs, return_episode_rewards=True)
         assert len(rewards) == eval_envs and set(lengths) == {10}
     assert model._plan_mean.shape[0] == train_envs
+
+
+def test_policy_save_load_and_sb3_default_arguments(tmp_path):
+    """TOLDPolicy.load accepts what its own _get_constructor_parameters saves; SB3's defaults are accepted."""
+    from sppo_sb3.sppo.policies import TOLDPolicy
+
+    model = tiny_sppo(optimize_memory_usage=False)
+    model.policy.save(tmp_path / "policy.pth")
+    loaded = TOLDPolicy.load(tmp_path / "policy.pth")
+    for a, b in zip(model.policy.parameters(), loaded.parameters()):
+        assert th.equal(a, b)
+    obs = th.zeros(1, 4)
+    th.testing.assert_close(loaded._predict(obs), model.policy._predict(obs))
+    with pytest.raises(ValueError, match="optimize_memory_usage=False"):
+        tiny_sppo(optimize_memory_usage=True)

@@ -141,6 +141,8 @@ class TOLDPolicy(BasePolicy):
     :param latent_dim: size of ``z``.
     :param encoder_dim: encoder hidden width.
     :param hidden_dim: hidden width of the other networks.
+    :param normalize_images: SB3's policy argument, saved by ``_get_constructor_parameters``; TOLD's inputs are flat
+        state vectors, so it must be False.
     """
 
     def __init__(
@@ -153,7 +155,10 @@ class TOLDPolicy(BasePolicy):
         hidden_dim: int = 512,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
+        normalize_images: bool = False,
     ) -> None:
+        if normalize_images:
+            raise ValueError("TOLDPolicy encodes flat state vectors, not images: normalize_images must be False.")
         super().__init__(
             observation_space,
             action_space,

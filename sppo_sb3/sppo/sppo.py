@@ -87,6 +87,8 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
     :param topo_kwargs: :class:`TOPOConfig` overrides.
     :param plan_at_predict: ``predict`` plans with MPPI (``True``) or acts with the policy prior alone (fast).
     :param shield_at_predict: ``predict`` passes its actions through the shield.
+    :param optimize_memory_usage: SB3's replay-buffer option; ``B̃`` needs explicit next observations, so only
+        ``False`` (SB3's default) is accepted.
     :param compile: compile the planner (all ``J`` iterations of Alg. 2) and the whole TOPO update (Alg. 3) with
         ``torch.compile`` (Inductor on CPU, CUDA graphs on CUDA): ``True``, ``False`` or ``"auto"`` (compile where
         ``torch.compile`` is available; see :func:`~sppo_sb3.common.compile.should_compile`). Each planning horizon
@@ -124,6 +126,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         shield_at_predict: bool = True,
         compile: CompileMode = "auto",
         replay_buffer_kwargs: dict[str, Any] | None = None,
+        optimize_memory_usage: bool = False,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -132,6 +135,8 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
+        if optimize_memory_usage:
+            raise ValueError("SPPO's replay buffer keeps next observations explicitly: use optimize_memory_usage=False.")
         super().__init__(
             policy,
             env,
@@ -145,6 +150,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
             gradient_steps=gradient_steps,
             replay_buffer_class=ShieldedReplayBuffer,
             replay_buffer_kwargs=replay_buffer_kwargs,
+            optimize_memory_usage=optimize_memory_usage,
             policy_kwargs=policy_kwargs,
             stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log,
@@ -227,7 +233,8 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         penalty = self.absorbing_penalty
         if penalty is None:
             penalty = self.shield_rule.penalty if self.shield_rule is not None else -1.0
-        kwargs = {"absorbing": self.absorbing, "penalty": penalty, **self.replay_buffer_kwargs}
+        kwargs = {"absorbing": self.absorbing, "penalty": penalty, "optimize_memory_usage": self.optimize_memory_usage}
+        kwargs.update(self.replay_buffer_kwargs)
         self.replay_buffer = ShieldedReplayBuffer(
             self.buffer_size, self.observation_space, self.action_space, device=self.device, n_envs=self.n_envs, **kwargs
         )
