@@ -292,3 +292,12 @@ def test_policy_save_load_and_sb3_default_arguments(tmp_path):
     th.testing.assert_close(loaded._predict(obs), model.policy._predict(obs))
     with pytest.raises(ValueError, match="optimize_memory_usage=False"):
         tiny_sppo(optimize_memory_usage=True)
+
+
+def test_predict_checks_observations_as_sb3_does():
+    model = tiny_sppo()
+    with pytest.raises(ValueError, match="Unexpected observation shape"):
+        model.predict(np.zeros(5, dtype=np.float32))
+    with pytest.raises(ValueError, match="mixing the Gym API"):
+        model.predict((np.zeros(4, dtype=np.float32), {}))
+    assert model.predict(np.zeros((3, 4), dtype=np.float64))[0].shape == (3, 2)

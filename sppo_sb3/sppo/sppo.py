@@ -17,7 +17,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, RolloutReturn, Schedule, TrainFreq
-from stable_baselines3.common.utils import should_collect_more_steps
+from stable_baselines3.common.utils import is_vectorized_observation, should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv
 
 from sppo_sb3.common.compile import CompiledFunction, CompileMode, check_compile_mode, should_compile
@@ -385,9 +385,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         :return: the actions and the new state: ``(mean,)``, the ``(n_envs, horizon, action dims)`` plan mean, or None
             when ``plan_at_predict`` is False.
         """
-        obs = np.asarray(observation, dtype=np.float32)
-        vectorized = obs.ndim == 2
-        obs = obs.reshape(-1, *self.observation_space.shape)
+        obs, vectorized = self._checked_observation(observation)
         raw_obs = self._vec_normalize_env.unnormalize_obs(obs) if self._vec_normalize_env is not None else obs
         assert isinstance(raw_obs, np.ndarray)
         obs_tensor = th.as_tensor(obs, dtype=th.float32, device=self.device)
@@ -406,6 +404,17 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
             actions, _ = self._shield(raw_obs, actions)
         actions = np.clip(actions, self.action_space.low, self.action_space.high)
         return (actions if vectorized else actions[0]), new_state
+
+    def _checked_observation(self, observation: Any) -> tuple[np.ndarray, bool]:
+        """``(n_envs, obs_dim)`` float32 observations and whether they were batched, checked as SB3's ``predict`` does."""
+        if isinstance(observation, tuple) and len(observation) == 2 and isinstance(observation[1], dict):
+            raise ValueError(
+                "You have passed a tuple to predict() instead of a NumPy array: you are probably mixing the Gym API "
+                "with SB3's VecEnv API: `obs, info = env.reset()` (Gym) vs `obs = vec_env.reset()` (VecEnv)."
+            )
+        obs = np.asarray(observation, dtype=np.float32)
+        vectorized = is_vectorized_observation(obs, self.observation_space)  # raises on a wrong shape, with SB3's message
+        return obs.reshape(-1, *self.observation_space.shape), vectorized
 
     def _warm_start_from_state(
         self, state: tuple[np.ndarray, ...] | None, episode_start: np.ndarray | None, n_envs: int
