@@ -165,3 +165,29 @@ def test_cost_critic_is_conservative():
     assert cql_ood > td_ood + 0.1
     assert cql_ood > cql_data + 0.1
     assert td_data < 0.05
+
+
+class _Float64Actions(gym.ActionWrapper):
+    """The Point task behind a float64 action space."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (2,), np.float64)
+
+    def action(self, action: np.ndarray) -> np.ndarray:
+        return action.astype(np.float32)
+
+
+def test_float64_action_spaces_train():
+    model = CSC("MlpPolicy", _Float64Actions(gym.make(ENV_ID)), seed=0, **TINY).learn(128)
+    assert model.num_timesteps == 128
+
+
+def test_loading_parameters_leaves_the_env_action_space_alone():
+    """The policy's bound buffers are copies: set_parameters must not write into the live env's space."""
+    model = CSC("MlpPolicy", ENV_ID, seed=0, **TINY)
+    space = model.get_env().action_space
+    params = model.get_parameters()
+    params["policy"]["action_low"] = th.full_like(params["policy"]["action_low"], 3.0)
+    model.set_parameters(params)
+    np.testing.assert_array_equal(space.low, [-1.0, -1.0])
