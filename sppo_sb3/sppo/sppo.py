@@ -248,6 +248,8 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         progress_bar: bool = False,
     ) -> tuple[int, BaseCallback]:
         self._setup_replay_buffer()
+        for optimizer in (self.policy.optimizer, self.policy.pi_optimizer):  # the update's Adam state, once per learn
+            init_optimizer_state(optimizer)
         assert self.safety_metrics is not None
         if reset_num_timesteps or self._last_obs is None:  # SB3 resets the envs: running episodes start over
             self.safety_metrics.restart_episodes()
@@ -332,15 +334,13 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         policy = self.policy
         policy.set_training_mode(True)
         self._update_learning_rate([policy.optimizer, policy.pi_optimizer])
-        init_optimizer_state(policy.optimizer)
-        init_optimizer_state(policy.pi_optimizer)
         lr = th.tensor(policy.optimizer.param_groups[0]["lr"], device=self.device)
+        models, optimizers = (policy.model, policy.model_target), (policy.optimizer, policy.pi_optimizer)
         for _ in range(gradient_steps):
             batch = self.replay_buffer.sample_sequences(batch_size, self.horizon, env=self._vec_normalize_env)
             noise = th.randn(batch.actions.shape, device=self.device)
             self._n_updates += 1
             ema = th.tensor(self.tau if self._n_updates % self.target_update_interval == 0 else 0.0, device=self.device)
-            models, optimizers = (policy.model, policy.model_target), (policy.optimizer, policy.pi_optimizer)
             stats = self._topo_update(*models, *optimizers, batch, noise, lr, ema, self.topo_config)
             self._train_stats += stats
             self._train_stats_count += 1
