@@ -13,6 +13,8 @@ import gymnasium as gym
 import numpy as np
 
 COST_KEY = "cost"
+SHAPED_COST_KEY = "shaped_cost"
+"""Where the tasks report the shaped cost ``ĉ`` of eq. 18 (what a learned shielding rule is fitted on)."""
 
 
 class MissingCostError(KeyError):

@@ -17,7 +17,7 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sppo_sb3.common.costs import COST_KEY
+from sppo_sb3.common.costs import COST_KEY, SHAPED_COST_KEY
 from sppo_sb3.common.safety import INTERVENED_KEY
 from sppo_sb3.shield.wrapper import PROPOSED_ACTION_KEY
 
@@ -45,12 +45,32 @@ class SequenceSamples(NamedTuple):
     consistency_mask: th.Tensor
 
 
+class CostTransitions(NamedTuple):
+    """Real transitions of ``B`` for fitting a shielding rule's ``Q̄`` (Alg. 1 line 12), as float64 numpy arrays.
+
+    :param observations: ``(B, obs_dim)`` raw states ``s``.
+    :param actions: ``(B, A)`` executed actions in [-1, 1] (the caller rescales them to env units).
+    :param shaped_costs: ``(B,)`` ``ĉ`` of eq. 18 (``info["shaped_cost"]``).
+    :param violations: ``(B,)`` the violation indicator ``c`` (``info["cost"]``).
+    :param next_observations: ``(B, obs_dim)`` raw next states ``s'``.
+    :param terminations: ``(B,)`` 1 where the episode terminated (not a time-limit truncation).
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    shaped_costs: np.ndarray
+    violations: np.ndarray
+    next_observations: np.ndarray
+    terminations: np.ndarray
+
+
 class ShieldedReplayBuffer(ReplayBuffer):
     """Replay buffer of real transitions ``B`` with the absorbing relabel ``B̃`` (Section III-D).
 
-    Reads the step's ``info["cost"]``, ``info["shield_intervened"]`` and ``info["proposed_action"]`` (env units)
-    in :meth:`add`. :meth:`sample` draws single transitions of ``B``; :meth:`sample_sequences` draws sequences of
-    ``B̃`` for TOPO.
+    Reads the step's ``info["cost"]``, ``info["shaped_cost"]`` (NaN where absent), ``info["shield_intervened"]`` and
+    ``info["proposed_action"]`` (env units) in :meth:`add`. :meth:`sample` draws single transitions of ``B``;
+    :meth:`sample_sequences` draws sequences of ``B̃`` for TOPO; :meth:`sample_cost_transitions` draws the real
+    transitions a learned shielding rule is fitted on.
 
     :param absorbing: ``"terminate"`` (the paper's ``M̃``: nothing more of an episode after its first intervention)
         or ``"restart"`` (every intervention is an absorbing terminal, and ``B̃`` restarts at the next real state).
@@ -78,6 +98,7 @@ class ShieldedReplayBuffer(ReplayBuffer):
         self.absorbing, self.penalty = absorbing, penalty
         self.proposed_actions = np.zeros_like(self.actions)
         self.costs = np.zeros((self.buffer_size, self.n_envs), dtype=np.float32)
+        self.shaped_costs = np.full((self.buffer_size, self.n_envs), np.nan, dtype=np.float32)
         self.intervened = np.zeros((self.buffer_size, self.n_envs), dtype=bool)
         self.relabel_valid = np.zeros((self.buffer_size, self.n_envs), dtype=bool)
         self._absorbed = np.zeros(self.n_envs, dtype=bool)  # M̃ has reached s† in the env's current episode
@@ -98,6 +119,7 @@ class ShieldedReplayBuffer(ReplayBuffer):
             [self._scale(info[PROPOSED_ACTION_KEY]) if PROPOSED_ACTION_KEY in info else a for info, a in zip(infos, action)]
         )
         self.costs[pos] = [float(info.get(COST_KEY, 0.0)) for info in infos]
+        self.shaped_costs[pos] = [float(info.get(SHAPED_COST_KEY, np.nan)) for info in infos]
         self.intervened[pos] = intervened
         self.proposed_actions[pos] = proposed.reshape(self.n_envs, self.action_dim)
         self.relabel_valid[pos] = ~self._absorbed  # the ã rule: M̃ data until (and including) T
@@ -128,6 +150,24 @@ class ShieldedReplayBuffer(ReplayBuffer):
             keep = self.relabel_valid[t, e]
             times, envs = np.concatenate([times, t[keep]]), np.concatenate([envs, e[keep]])
         return times[:batch_size], envs[:batch_size]
+
+    def sample_cost_transitions(self, batch_size: int) -> CostTransitions:
+        """Uniform real transitions of ``B`` (raw observations) for fitting ``Q̄`` (Alg. 1 line 12).
+
+        :raises ValueError: where a sampled step has no ``info["shaped_cost"]`` (the env does not report it).
+        """
+        upper = self.buffer_size if self.full else self.pos
+        times, envs = np.random.randint(0, upper, size=batch_size), np.random.randint(0, self.n_envs, size=batch_size)
+        shaped = self.shaped_costs[times, envs].astype(np.float64)
+        if np.isnan(shaped).any():
+            raise ValueError(
+                f"The env does not report info[{SHAPED_COST_KEY!r}], the shaped cost of eq. 18 that a learned shielding "
+                "rule is fitted on: report it from the env (see SafePointCircle-v0) or use refine_shield=False."
+            )
+        terminations = self.dones[times, envs] * (1 - self.timeouts[times, envs])
+        data = (self.observations[times, envs], self.actions[times, envs], shaped, self.costs[times, envs])
+        rest = (self.next_observations[times, envs], terminations)
+        return CostTransitions(*(np.asarray(x, dtype=np.float64) for x in (*data, *rest)))
 
     def sample_sequences(self, batch_size: int, length: int, env: VecNormalize | None = None) -> SequenceSamples:
         """Sample ``batch_size`` sequences of ``length`` steps of ``B̃`` that never cross an episode end.

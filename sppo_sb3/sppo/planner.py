@@ -93,10 +93,13 @@ class _Cast(nn.Module):
 
 
 def low_precision_copy(model: TOLD, dtype: th.dtype) -> TOLD:
-    """A copy of ``model`` with hidden layers in ``dtype`` and the reward and value heads' last layer in fp32."""
+    """A copy of ``model`` with hidden layers in ``dtype`` and the last layer of the reward, value and termination
+    heads in fp32."""
     shadow = copy.deepcopy(model).to(dtype)
-    for name in ("reward", "q1", "q2"):
-        head: nn.Sequential = getattr(shadow, name)
+    for name in ("reward", "q1", "q2", "termination"):
+        head: nn.Sequential | None = getattr(shadow, name)
+        if head is None:
+            continue
         layers = list(head)
         setattr(shadow, name, nn.Sequential(*layers[:-1], _Cast(th.float32), layers[-1].float()))
     return shadow
@@ -142,7 +145,11 @@ def draw_noise(
 def trajectory_return(
     model: TOLD, z: th.Tensor, actions: th.Tensor, gamma: float, policy_std: float, terminal_noise: th.Tensor
 ) -> th.Tensor:
-    """``Φ = Σ_{t<H} γ^t R(z_t, a_t) + γ^H min Q(z_H, π(z_H))`` (eq. 10) for a flat batch.
+    """``Φ = Σ_{t<H} γ^t c_t R(z_t, a_t) + γ^H c_H min Q(z_H, π(z_H))`` (eq. 10) for a flat batch.
+
+    ``c_t`` is the probability that the imagined episode of ``M̃`` is still running at step ``t`` (the product of
+    :meth:`TOLD.continuation` before ``t``): after a predicted absorbing step ``s†`` adds no reward and no value
+    (eq. 7). Without a termination head ``c_t = 1``, TD-MPC's return.
 
     :param z: ``(B, latent)`` start latents.
     :param actions: ``(H, B, A)`` action sequences.
@@ -150,11 +157,25 @@ def trajectory_return(
     :return: ``(B,)`` returns.
     """
     value = th.zeros(z.shape[0], device=z.device)
+    alive = th.ones(z.shape[0], device=z.device)
     for t in range(actions.shape[0]):
-        z, reward = model.next(z, actions[t])
-        value += gamma**t * reward.squeeze(-1)
+        z, alive = step_return(model, z, actions[t], alive, gamma**t, value)
     terminal = model.min_q(z, model.policy(z, policy_std, terminal_noise.to(z.dtype))).squeeze(-1)
-    return value + gamma ** actions.shape[0] * terminal
+    return value + gamma ** actions.shape[0] * alive * terminal
+
+
+def step_return(
+    model: TOLD, z: th.Tensor, action: th.Tensor, alive: th.Tensor, discount: float, value: th.Tensor
+) -> tuple[th.Tensor, th.Tensor]:
+    """One imagined step of eq. 10: adds ``discount · c_t · R(z_t, a_t)`` to ``value`` in place.
+
+    :return: the next latent and ``c_(t+1) = c_t · (1 - P(termination))``.
+    """
+    next_z, reward = model.next(z, action)
+    value += discount * alive * reward.squeeze(-1).float()
+    if model.termination is not None:
+        alive = alive * model.continuation(z, action).float()
+    return next_z, alive
 
 
 def blocked_returns(
@@ -175,11 +196,11 @@ def policy_rollout(
     """
     noise = noise.to(z.dtype)
     actions, value = [], th.zeros(z.shape[0], device=z.device)
+    alive = th.ones(z.shape[0], device=z.device)
     for t in range(horizon):
         actions.append(model.policy(z, policy_std, noise[t]))
-        z, reward = model.next(z, actions[-1])
-        value += gamma**t * reward.squeeze(-1)
-    value += gamma**horizon * model.min_q(z, model.policy(z, policy_std, noise[horizon])).squeeze(-1)
+        z, alive = step_return(model, z, actions[-1], alive, gamma**t, value)
+    value += gamma**horizon * alive * model.min_q(z, model.policy(z, policy_std, noise[horizon])).squeeze(-1)
     return th.stack(actions), value
 
 

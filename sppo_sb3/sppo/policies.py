@@ -1,7 +1,9 @@
 """TOLD — the task-oriented latent dynamics model of eq. 9 — and SPPO's policy wrapper around it.
 
 Five deterministic MLPs (TD-MPC sizes by default): encoder ``h(s) → z``, latent dynamics ``d(z, a) → z'``,
-reward ``R(z, a)``, twin value ``Q(z, a)`` and policy ``π(z) → a ∈ [-1, 1]``.
+reward ``R(z, a)``, twin value ``Q(z, a)`` and policy ``π(z) → a ∈ [-1, 1]``; optionally a sixth, the termination
+head ``T(z, a)``: the logit of the probability that ``(z, a)`` ends the episode of the absorbing MDP ``M̃`` (eq. 8: a
+shielded proposal, a violation or a real termination), so that planning adds nothing after it (eq. 10).
 """
 
 from __future__ import annotations
@@ -59,12 +61,16 @@ def orthogonal_init(module: nn.Module) -> None:
         nn.init.zeros_(module.bias)
 
 
-def zero_last_layer(net: nn.Sequential) -> None:
-    """Zero the output layer, so the reward and values start at exactly 0."""
+def zero_last_layer(net: nn.Sequential, bias: float = 0.0) -> None:
+    """Zero the output layer's weights, so the head starts at the constant ``bias`` (0: reward and values)."""
     last = net[-1]
     assert isinstance(last, nn.Linear)
     nn.init.zeros_(last.weight)
-    nn.init.zeros_(last.bias)
+    nn.init.constant_(last.bias, bias)
+
+
+INITIAL_TERMINATION_LOGIT = -4.6
+"""``log(0.01 / 0.99)``: the untrained termination head predicts that 1% of steps end the episode."""
 
 
 class TOLD(nn.Module):
@@ -75,9 +81,19 @@ class TOLD(nn.Module):
     :param latent_dim: size of the latent state ``z``.
     :param encoder_dim: hidden width of the encoder ``h``.
     :param hidden_dim: hidden width of ``d``, ``R``, ``π`` (two layers each) and ``Q``.
+    :param termination: add the termination head ``T(z, a)`` (two hidden layers, like ``R``); without it TOLD is
+        TD-MPC's model and plans as if no episode ever ended.
     """
 
-    def __init__(self, obs_dim: int, action_dim: int, latent_dim: int = 50, encoder_dim: int = 256, hidden_dim: int = 512):
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int,
+        latent_dim: int = 50,
+        encoder_dim: int = 256,
+        hidden_dim: int = 512,
+        termination: bool = False,
+    ):
         super().__init__()
         self.latent_dim, self.action_dim = latent_dim, action_dim
         self.encoder = mlp(obs_dim, [encoder_dim], latent_dim)
@@ -86,9 +102,12 @@ class TOLD(nn.Module):
         self.pi = mlp(latent_dim, [hidden_dim, hidden_dim], action_dim)
         self.q1 = q_network(latent_dim + action_dim, hidden_dim)
         self.q2 = q_network(latent_dim + action_dim, hidden_dim)
+        self.termination = mlp(latent_dim + action_dim, [hidden_dim, hidden_dim], 1) if termination else None
         self.apply(orthogonal_init)
         for net in (self.reward, self.q1, self.q2):
             zero_last_layer(net)
+        if self.termination is not None:
+            zero_last_layer(self.termination, INITIAL_TERMINATION_LOGIT)
 
     def encode(self, obs: th.Tensor) -> th.Tensor:
         """Representation ``z = h(s)``."""
@@ -106,6 +125,17 @@ class TOLD(nn.Module):
     def predicted_reward(self, z: th.Tensor, action: th.Tensor) -> th.Tensor:
         """Reward ``R(z, a)`` of shape ``(..., 1)``."""
         return self.reward(th.cat([z, action], dim=-1))
+
+    def termination_logit(self, z: th.Tensor, action: th.Tensor) -> th.Tensor:
+        """Logit of ``P(the step (z, a) ends the episode of M̃)``, shape ``(..., 1)``; needs the termination head."""
+        assert self.termination is not None, "TOLD was built without a termination head"
+        return self.termination(th.cat([z, action], dim=-1))
+
+    def continuation(self, z: th.Tensor, action: th.Tensor) -> th.Tensor:
+        """``1 - P(termination)`` of shape ``(...,)``: ones without a termination head (TD-MPC)."""
+        if self.termination is None:
+            return th.ones(z.shape[:-1], dtype=z.dtype, device=z.device)
+        return th.sigmoid(-self.termination_logit(z, action)).squeeze(-1)
 
     def policy(self, z: th.Tensor, std: float = 0.0, noise: th.Tensor | None = None) -> th.Tensor:
         """``π(z)`` squashed to [-1, 1]; with ``std > 0`` adds clipped Gaussian exploration noise (TD-MPC).
@@ -141,6 +171,9 @@ class TOLDPolicy(BasePolicy):
     :param latent_dim: size of ``z``.
     :param encoder_dim: encoder hidden width.
     :param hidden_dim: hidden width of the other networks.
+    :param termination: give TOLD its termination head (see :class:`TOLD`). ``SPPO`` sets it from its
+        ``termination_model`` argument; the default False is TD-MPC's model (and what models saved before the head
+        existed hold).
     :param normalize_images: SB3's policy argument, saved by ``_get_constructor_parameters``; TOLD's inputs are flat
         state vectors, so it must be False.
     """
@@ -153,6 +186,7 @@ class TOLDPolicy(BasePolicy):
         latent_dim: int = 50,
         encoder_dim: int = 256,
         hidden_dim: int = 512,
+        termination: bool = False,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
         normalize_images: bool = False,
@@ -168,9 +202,10 @@ class TOLDPolicy(BasePolicy):
             normalize_images=False,
         )
         self.latent_dim, self.encoder_dim, self.hidden_dim = latent_dim, encoder_dim, hidden_dim
+        self.termination = termination
         obs_dim = int(spaces.flatdim(observation_space))
         action_dim = int(action_space.shape[0])
-        self.model = TOLD(obs_dim, action_dim, latent_dim, encoder_dim, hidden_dim)
+        self.model = TOLD(obs_dim, action_dim, latent_dim, encoder_dim, hidden_dim, termination)
         self.model_target = copy.deepcopy(self.model)
         self.model_target.requires_grad_(False)
         model_params = [p for name, p in self.model.named_parameters() if not name.startswith("pi.")]
@@ -184,6 +219,7 @@ class TOLDPolicy(BasePolicy):
             latent_dim=self.latent_dim,
             encoder_dim=self.encoder_dim,
             hidden_dim=self.hidden_dim,
+            termination=self.termination,
             lr_schedule=self._dummy_schedule,
             optimizer_class=self.optimizer_class,
             optimizer_kwargs=self.optimizer_kwargs,

@@ -24,6 +24,7 @@ from sppo_sb3.common.compile import CompiledFunction, CompileMode, check_compile
 from sppo_sb3.common.costs import costs_from_infos
 from sppo_sb3.common.safety import INTERVENED_KEY, SafetyMetrics
 from sppo_sb3.shield import ShieldingRule, resolve_shielding_rule
+from sppo_sb3.shield.learned import LearnedCostCriticRule, definition2_step_costs
 from sppo_sb3.shield.persistence import ShieldedLoadMixin
 from sppo_sb3.shield.wrapper import PROPOSED_ACTION_KEY
 from sppo_sb3.sppo.buffers import AbsorbingMode, ShieldedReplayBuffer
@@ -83,7 +84,15 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         interventions, "terminate" -3.5 and -3.3 with 2110 — it keeps only one shielded example per episode,
         so the planner learns slowly which proposals the shield rejects.
     :param absorbing_penalty: ``R̃`` of eq. 7; defaults to the rule's ``penalty``.
-    :param planner_kwargs: :class:`MPPIConfig` overrides.
+    :param termination_model: give TOLD a termination head, trained on ``B̃``'s terminal flags (absorbing
+        interventions and real terminations, not time-limit truncations), and plan with it: eq. 10 adds no reward and
+        no value after a predicted absorbing step. ``False`` is TD-MPC's model, which plans as if no episode ended.
+    :param refine_shield: Alg. 1 line 12, ``G ← UpdateShieldingRule(B)``: fit the rule's ``Q̄`` on the real
+        transitions of ``B`` during :meth:`train` (as many minibatches of ``batch_size`` as TOPO updates), with the
+        backup's targets on Definition 2's scale (:func:`~sppo_sb3.shield.learned.definition2_step_costs`). Needs a
+        learnable rule, :class:`~sppo_sb3.shield.LearnedCostCriticRule`, and an env reporting ``info["shaped_cost"]``.
+        For tasks without a model to roll ``Q̄`` on: only the backup policy ``ζ`` has to be known. The rule starts
+        knowing nothing (``Q̄ ≡ 0`` shields nothing), so it protects only once it has seen the task's costs.
     :param topo_kwargs: :class:`TOPOConfig` overrides.
     :param plan_at_predict: ``predict`` plans with MPPI (``True``) or acts with the policy prior alone (fast).
     :param shield_at_predict: ``predict`` passes its actions through the shield.
@@ -120,6 +129,8 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         shield: ShieldingRule | str | None = "auto",
         absorbing: AbsorbingMode = "restart",
         absorbing_penalty: float | None = None,
+        termination_model: bool = True,
+        refine_shield: bool = False,
         planner_kwargs: dict[str, Any] | None = None,
         topo_kwargs: dict[str, Any] | None = None,
         plan_at_predict: bool = True,
@@ -151,7 +162,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
             replay_buffer_class=ShieldedReplayBuffer,
             replay_buffer_kwargs=replay_buffer_kwargs,
             optimize_memory_usage=optimize_memory_usage,
-            policy_kwargs=policy_kwargs,
+            policy_kwargs={**(policy_kwargs or {}), "termination": termination_model},
             stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log,
             verbose=verbose,
@@ -165,6 +176,8 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         self.shield = shield
         self.absorbing = absorbing
         self.absorbing_penalty = absorbing_penalty
+        self.termination_model = termination_model
+        self.refine_shield = refine_shield
         self.planner_config = MPPIConfig(**{"gamma": gamma, "horizon": horizon, **(planner_kwargs or {})})
         self.topo_config = TOPOConfig(**{"gamma": gamma, **(topo_kwargs or {})})
         self.plan_at_predict = plan_at_predict
@@ -192,6 +205,12 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         self._convert_train_freq()
         if self.shield_rule is None:
             self.shield_rule = resolve_shielding_rule(self.shield, self.env, required=False)
+        if self.refine_shield and not isinstance(self.shield_rule, LearnedCostCriticRule):
+            raise ValueError(
+                f"refine_shield=True fits the shielding rule's Q̄ on the replay buffer, which needs a learnable rule "
+                f"(sppo_sb3.shield.LearnedCostCriticRule with your backup policy), got {self.shield_rule!r}. "
+                "Pass shield=LearnedCostCriticRule(...) or refine_shield=False."
+            )
         self._setup_compiled()
         if self.safety_metrics is None:
             self.safety_metrics = SafetyMetrics(self.n_envs, window=self._stats_window_size)
@@ -344,8 +363,23 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
             stats = self._topo_update(*models, *optimizers, batch, noise, lr, ema, self.topo_config)
             self._train_stats += stats
             self._train_stats_count += 1
+        if self.refine_shield:
+            self._refine_shield(gradient_steps, batch_size)
         policy.set_training_mode(False)
         self.planner.mark_stale()
+
+    def _refine_shield(self, gradient_steps: int, batch_size: int) -> None:
+        """Alg. 1 line 12: fit the learned ``Q̄`` on real transitions of ``B`` with the backup's targets."""
+        rule = self.shield_rule
+        assert isinstance(rule, LearnedCostCriticRule)
+        losses = []
+        for _ in range(gradient_steps):
+            t = self.replay_buffer.sample_cost_transitions(batch_size)
+            costs = definition2_step_costs(t.shaped_costs, t.violations, rule.discount)
+            done = np.maximum(t.terminations, t.violations > 0)
+            actions = self.policy.unscale_action(t.actions)
+            losses.append(rule.update(t.observations, actions, costs, t.next_observations, done, 1, batch_size))
+        self.logger.record("train/shield_loss", float(np.mean(losses)))
 
     def _record_train_stats(self) -> None:
         """Means of the TOPO statistics since the last dump (one device-to-host copy per log interval)."""

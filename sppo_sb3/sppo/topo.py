@@ -25,6 +25,8 @@ class TOPOConfig:
     :param reward_coef: ``c1`` of eq. 14.
     :param value_coef: ``c2`` of eq. 14.
     :param consistency_coef: ``c3`` of eq. 14.
+    :param termination_coef: weight of the termination head's loss (binary cross-entropy on ``B̃``'s terminal flags;
+        used only when TOLD has the head).
     :param rho: ``λ`` of eq. 13, the per-step decay of the loss weight.
     :param gamma: discount of the TD target (eq. 16).
     :param grad_clip: max gradient norm.
@@ -34,13 +36,14 @@ class TOPOConfig:
     reward_coef: float = 0.5
     value_coef: float = 0.1
     consistency_coef: float = 2.0
+    termination_coef: float = 1.0
     rho: float = 0.5
     gamma: float = 0.99
     grad_clip: float = 10.0
     policy_std: float = 0.05
 
 
-TOPO_STATS = ("loss", "pi_loss", "grad_norm", "reward", "value", "consistency")
+TOPO_STATS = ("loss", "pi_loss", "grad_norm", "reward", "value", "consistency", "termination")
 """Names of the entries of the statistics vector that :func:`topo_update` returns."""
 
 
@@ -72,6 +75,15 @@ def consistency_loss(predicted_z: th.Tensor, target_z: th.Tensor) -> th.Tensor:
     return ((predicted_z - target_z) ** 2).mean(dim=-1)
 
 
+def termination_loss(logits: th.Tensor, terminals: th.Tensor) -> th.Tensor:
+    """Binary cross-entropy of the termination head against ``B̃``'s terminal flags, per sample.
+
+    The flags are those of the TD target (eq. 16): absorbing interventions and real terminations, not time-limit
+    truncations.
+    """
+    return th.nn.functional.binary_cross_entropy_with_logits(logits.squeeze(-1), terminals, reduction="none")
+
+
 def rho_weights(cfg: TOPOConfig, horizon: int, device: th.device) -> th.Tensor:
     """``λ^i`` for ``i < H`` (eq. 13)."""
     return cfg.rho ** th.arange(horizon, device=device, dtype=th.float32)
@@ -86,11 +98,13 @@ def roll_latents(model: TOLD, obs: th.Tensor, actions: th.Tensor) -> th.Tensor:
 
 
 def model_loss(model: TOLD, target: TOLD, batch: SequenceSamples, noise: th.Tensor, cfg: TOPOConfig) -> tuple[th.Tensor, ...]:
-    """``J = Σ_i λ^i (c1 L_r + c2 L_v + c3 L_c)`` (eqs. 13, 14) over a batch of sequences, scaled by ``1/H``.
+    """``J = Σ_i λ^i (c1 L_r + c2 L_v + c3 L_c + c_T L_T)`` (eqs. 13, 14) over a batch of sequences, scaled by ``1/H``.
+
+    ``L_T``, the termination head's cross-entropy, is not in the paper's eq. 14; it is 0 without the head.
 
     :param noise: ``(H, B, A)`` standard normal draws for the TD targets' policy noise.
     :return: the loss, the rolled latents ``z_0 .. z_(H-1)`` (detached, for the policy loss) and the weighted
-        reward, value and consistency terms.
+        reward, value, consistency and termination terms.
     """
     horizon = batch.actions.shape[0]
     with th.no_grad():
@@ -104,7 +118,12 @@ def model_loss(model: TOLD, target: TOLD, batch: SequenceSamples, noise: th.Tens
     value = (weights * (value_loss(q1, q2, target_q) * batch.mask).mean(dim=1)).sum()
     consistency = (weights * (consistency_loss(latents[1:], target_z) * batch.consistency_mask).mean(dim=1)).sum()
     total = cfg.reward_coef * reward + cfg.value_coef * value + cfg.consistency_coef * consistency
-    return total / horizon, latents[:-1].detach(), reward, value, consistency
+    termination = th.zeros((), device=latents.device)
+    if model.termination is not None:
+        logits = model.termination_logit(latents[:-1], batch.actions)
+        termination = (weights * (termination_loss(logits, batch.terminals) * batch.mask).mean(dim=1)).sum()
+        total = total + cfg.termination_coef * termination
+    return total / horizon, latents[:-1].detach(), reward, value, consistency, termination
 
 
 def policy_loss(model: TOLD, latents: th.Tensor, mask: th.Tensor, cfg: TOPOConfig) -> th.Tensor:
@@ -137,11 +156,11 @@ def topo_update(
     """
     model_params = [p for group in optimizer.param_groups for p in group["params"]]
     pi_params = [p for group in pi_optimizer.param_groups for p in group["params"]]
-    loss, latents, reward, value, consistency = model_loss(model, target, batch, noise, cfg)
+    loss, latents, reward, value, consistency, termination = model_loss(model, target, batch, noise, cfg)
     grads, grad_norm = clip_by_total_norm(th.autograd.grad(loss, model_params), cfg.grad_clip)
     apply_gradients(optimizer, grads, lr)
     pi_loss = policy_loss(model, latents, batch.mask, cfg)
     pi_grads, _ = clip_by_total_norm(th.autograd.grad(pi_loss, pi_params), cfg.grad_clip)
     apply_gradients(pi_optimizer, pi_grads, lr)
     ema_update(model, target, ema_weight)
-    return th.stack([loss, pi_loss, grad_norm, reward, value, consistency]).detach()
+    return th.stack([loss, pi_loss, grad_norm, reward, value, consistency, termination]).detach()
