@@ -20,7 +20,7 @@ import functools
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar, Literal
 
 import gymnasium as gym
 import numpy as np
@@ -91,10 +91,23 @@ class ShieldingRule(ABC):
     float array of shape ``(B, act_dim)`` inside the action space, both from raw observations ``(B, obs_dim)`` and
     actions in the env's units. Outputs of another shape are rejected with a message that names the fix.
 
-    :param eta: advantage threshold ``η``; ``(s, a)`` is shielded iff ``Ā(s, a) > η``.
+    **Two scales of** ``Q̄`` (:attr:`value_scale`). The built-in model-based rules return the discounted *shaped*
+    cost of eq. 18 along "``a``, then ``ζ``", with the absorbing tail ``γ^(t+1) / (1 - γ)`` where the roll enters the
+    unsafe set (``ĉ = 1`` forever there): values in ``[0, γ / (1 - γ)]``, so a violation is worth about
+    ``1 / (1 - γ)`` and ``η`` is measured in those units. Definition 2 takes ``Q̄ ∈ [0, γ]``, where a violation ``T``
+    steps ahead is worth ``γ^T``: :meth:`definition2_value` is ``(1 - γ)`` times the shaped value, and
+    :attr:`definition2_eta` ``= (1 - γ) η`` the same threshold on that scale — scaling both sides of ``Ā > η`` by
+    ``1 - γ`` leaves every decision unchanged. Theorem 1's bound (:mod:`sppo_sb3.shield.bounds`) is stated on
+    Definition 2's scale. A learned critic (:class:`~sppo_sb3.shield.learned.LearnedCostCriticRule`) is fitted on
+    that scale directly.
+
+    :param eta: advantage threshold ``η``; ``(s, a)`` is shielded iff ``Ā(s, a) > η`` (on the rule's own scale).
     :param penalty: reward ``R̃ <= 0`` of the absorbing transition that replaces a shielded step in the
         absorbing MDP (eq. 7).
     """
+
+    value_scale: ClassVar[Literal["shaped", "definition2"]] = "shaped"
+    """Scale of :meth:`cost_value`: ``"shaped"`` (``[0, γ / (1 - γ)]``, absorbing tail) or ``"definition2"`` (``[0, γ]``)."""
 
     def __init__(self, eta: float = 0.0, penalty: float = -1.0) -> None:
         if eta < 0:
@@ -117,6 +130,27 @@ class ShieldingRule(ABC):
     @abstractmethod
     def backup_action(self, obs: np.ndarray) -> np.ndarray:
         """The backup policy ``ζ(s)`` for a batch of observations → ``(B, act_dim)`` in env action units."""
+
+    @property
+    def discount(self) -> float:
+        """``γ`` of ``Q̄``: the rule's ``gamma`` attribute (every built-in rule has one)."""
+        gamma = getattr(self, "gamma", None)
+        if gamma is None:
+            raise AttributeError(
+                f"{type(self).__name__} has no attribute 'gamma': set self.gamma, the discount of its Q̄, to use "
+                "Definition 2's scale and the bounds of sppo_sb3.shield.bounds."
+            )
+        return float(gamma)
+
+    def definition2_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """``Q̄(s, a)`` on Definition 2's scale ``[0, γ]``: ``(1 - γ)`` times a shaped value (see the class docstring)."""
+        q = self.checked_cost_value(np.asarray(obs, dtype=np.float64), np.asarray(actions, dtype=np.float64))
+        return q if self.value_scale == "definition2" else (1.0 - self.discount) * q
+
+    @property
+    def definition2_eta(self) -> float:
+        """``η`` on Definition 2's scale: the threshold that gives the same decisions with :meth:`definition2_value`."""
+        return self.eta if self.value_scale == "definition2" else (1.0 - self.discount) * self.eta
 
     def advantage(self, obs: np.ndarray, actions: np.ndarray, backup: np.ndarray | None = None) -> np.ndarray:
         """``Ā(s, a) = Q̄(s, a) - Q̄(s, ζ(s))``, both terms evaluated in one batched call of :meth:`cost_value`."""

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, ClassVar, Literal
 
 import gymnasium as gym
 import numpy as np
@@ -31,6 +31,21 @@ def _bounds_scaler(space: gym.spaces.Box) -> tuple[np.ndarray, np.ndarray]:
     return centre, half
 
 
+def definition2_step_costs(shaped_costs: np.ndarray, violations: np.ndarray, gamma: float) -> np.ndarray:
+    """The per-step costs whose backup targets give ``Q̄`` on Definition 2's scale, for :meth:`LearnedCostCriticRule.update`.
+
+    The model-based rules' ``Q̄`` times ``1 - γ`` satisfies ``Q̄(s, a) = γ (1 - γ) ĉ(s') + γ Q̄(s', ζ(s'))`` while ``s'``
+    is safe, and ``Q̄(s, a) = γ`` where ``s'`` is unsafe (the absorbing tail ``γ / (1 - γ)`` times ``1 - γ``). So the
+    step cost is ``γ (1 - γ) ĉ`` on safe steps and ``γ`` on a violating step (which must be passed as done).
+
+    :param shaped_costs: ``ĉ`` of eq. 18 of each step (``info["shaped_cost"]``).
+    :param violations: the violation indicator ``c`` of each step (``info["cost"]``).
+    :param gamma: discount of ``Q̄``.
+    """
+    shaped_costs = np.asarray(shaped_costs, dtype=np.float64)
+    return np.where(np.asarray(violations) > 0, gamma, gamma * (1.0 - gamma) * shaped_costs)
+
+
 class LearnedCostCriticRule(ShieldingRule):
     """Shielding rule ``G = (Q̄, ζ, Ā, η, I)`` with a known backup ``ζ`` and an MLP cost critic ``Q̄(s, a)``.
 
@@ -49,8 +64,10 @@ class LearnedCostCriticRule(ShieldingRule):
     step leads to (``s'``) to the unsafe set — e.g. ``info["shaped_cost"]`` of ``SafePointCircle-v0``. A step that
     enters the unsafe set has ``ĉ = 1`` and must be passed with ``done = True`` (the unsafe set is absorbing).
     Because values are clamped at ``γ``, a wide band ``α`` saturates ``Q̄`` near the unsafe set, where the shield then
-    cannot rank actions any more (``Ā = 0``): prefer ``α = 0`` or a narrow band, or pass ``γ·(1 - γ)·ĉ``, whose
-    discounted sum never exceeds ``γ``. ``done`` must be termination only, not a time-limit truncation.
+    cannot rank actions any more (``Ā = 0``): prefer ``α = 0`` or a narrow band, or pass
+    :func:`definition2_step_costs` (``γ (1 - γ) ĉ``, and ``γ`` on a violation), which gives the model-based rules'
+    ``Q̄`` on Definition 2's scale; ``SPPO(refine_shield=True)`` does. ``done`` must be termination only, not a
+    time-limit truncation.
 
     A learned ``Q̄`` carries approximation error, so with ``η = 0`` tiny positive ``Ā`` between equally safe actions
     get shielded: choose ``η`` above the critic's error (the paper uses ``η = 0.2`` where ``Q̄`` is approximate).
@@ -70,6 +87,8 @@ class LearnedCostCriticRule(ShieldingRule):
     :param device: torch device (``"auto"``: CUDA when available).
     :param seed: seeds the critic's initial weights and the minibatch sampling (``None``: not seeded).
     """
+
+    value_scale: ClassVar[Literal["shaped", "definition2"]] = "definition2"
 
     def __init__(
         self,
