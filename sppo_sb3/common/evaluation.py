@@ -1,0 +1,92 @@
+"""Deployment safety: the learned policy evaluated with and without the shield, side by side.
+
+The paper bounds the safety of the learned policy deployed *without* the shield (Corollary 1: ``V̄^Π̃ <= Q̄^ζ +
+min{β + η, 2γ} / (1 - γ) + ε``). :func:`evaluate_deployment` measures both deployments of any algorithm of the
+package the same way: the policy's own actions (``predict`` with the algorithm's own shield turned off), executed
+either as they are (``shielded=False``) or through :class:`~sppo_sb3.shield.ShieldWrapper` with the model's rule
+(``shielded=True``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.base_class import BaseAlgorithm
+
+from sppo_sb3.common.costs import COST_KEY
+from sppo_sb3.common.safety import INTERVENED_KEY
+from sppo_sb3.shield.wrapper import ShieldWrapper
+
+DEPLOYMENT_KEYS = ("mean_reward", "mean_violations", "safe_episode_rate", "mean_interventions")
+"""What :func:`evaluate_deployment` returns, per deployment (logged as ``eval/<key>`` and ``eval_unshielded/<key>``)."""
+
+
+@contextlib.contextmanager
+def own_shield_off(model: BaseAlgorithm) -> Iterator[None]:
+    """Turn off the shield an algorithm applies inside ``predict`` (SPPO's ``shield_at_predict``) for a while."""
+    previous = getattr(model, "shield_at_predict", None)
+    if previous is not None:
+        model.shield_at_predict = False  # type: ignore[attr-defined]
+    try:
+        yield
+    finally:
+        if previous is not None:
+            model.shield_at_predict = previous  # type: ignore[attr-defined]
+
+
+def evaluate_deployment(
+    model: BaseAlgorithm,
+    make_env: Callable[[], gym.Env],
+    n_eval_episodes: int = 10,
+    shielded: bool = True,
+    deterministic: bool = True,
+    seed: int | None = 0,
+) -> dict[str, float]:
+    """Run the learned policy for ``n_eval_episodes`` full episodes, with or without the model's shield.
+
+    :param model: a trained algorithm of the package (its ``shield_rule`` is the shield; ``None``: no shield exists,
+        and both deployments are the same).
+    :param make_env: builds one evaluation env (raw observations, ``info["cost"]``), e.g.
+        ``lambda: gym.make("SafePointCircle-v0")``.
+    :param n_eval_episodes: episodes to run.
+    :param shielded: execute the actions through :class:`ShieldWrapper` with ``model.shield_rule``.
+    :param deterministic: deterministic actions (deployment).
+    :param seed: seeds the first reset (the following episodes continue the env's RNG); ``None``: unseeded.
+        The env's observations go to ``predict`` as they are: a model trained under ``VecNormalize`` needs the same
+        normalisation in ``make_env``.
+    :return: mean return, mean violations per episode, safe-episode rate (% of episodes without a violation) and
+        mean shield interventions per episode.
+    """
+    if n_eval_episodes < 1:
+        raise ValueError(f"n_eval_episodes must be >= 1, got {n_eval_episodes}.")
+    env = make_env()
+    rule = getattr(model, "shield_rule", None)
+    if shielded and rule is not None:
+        env = ShieldWrapper(env, rule)
+    returns, violations, interventions = [], [], []
+    with own_shield_off(model):
+        for episode in range(n_eval_episodes):
+            obs, _ = env.reset(seed=seed if episode == 0 else None)
+            totals = np.zeros(3)
+            state: Any = None
+            done, start = False, np.array([True])
+            while not done:
+                action, state = model.predict(obs, state=state, episode_start=start, deterministic=deterministic)
+                obs, reward, terminated, truncated, info = env.step(action)
+                start = np.array([False])
+                totals += (float(reward), float(info.get(COST_KEY, 0.0)) > 0, bool(info.get(INTERVENED_KEY, False)))
+                done = terminated or truncated
+            returns.append(totals[0])
+            violations.append(totals[1])
+            interventions.append(totals[2])
+    env.close()
+    return {
+        "mean_reward": float(np.mean(returns)),
+        "mean_violations": float(np.mean(violations)),
+        "safe_episode_rate": 100.0 * float(np.mean(np.asarray(violations) == 0)),
+        "mean_interventions": float(np.mean(interventions)),
+    }
