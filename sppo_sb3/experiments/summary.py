@@ -1,6 +1,7 @@
 """What a finished run reports: its learning curve from rl-zoo3's monitor files and its ``summary.json``.
 
-:func:`summarize` is the one place that decides what ``summary.json`` holds (the plots aggregate whatever it holds).
+:func:`summarize` is the one place that decides what ``summary.json`` holds. A new figure goes there; to show it as a
+mean ± std over seeds, add its key to :data:`sppo_sb3.experiments.stats.AGGREGATED_KEYS` (``aggregate.csv``).
 """
 
 from __future__ import annotations
