@@ -1,9 +1,10 @@
 """rl-zoo3 integration: the package's algorithms, samplers and safety outputs, registered with the zoo.
 
-:func:`register_algos` adds ``sppo``, ``cpo``, ``pdo``, ``sailr`` and ``csc`` to rl-zoo3's ``ALGOS`` (an algorithm
-whose module does not import is skipped with a warning and listed in :data:`UNAVAILABLE`) and their Optuna
-samplers to ``HYPERPARAMS_SAMPLER``/``HYPERPARAMS_CONVERTER``. :func:`install` does that and makes rl-zoo3's train
-command cost-aware (used by ``sppo-train``):
+:func:`register_algos` adds the package's algorithms (:data:`sppo_sb3.algorithms.ALGORITHMS`: ``sppo``, ``pdo``,
+``cpo``, ``sailr``, ``csc``) to rl-zoo3's ``ALGOS`` (an algorithm whose module does not import is skipped with a
+warning and listed in :data:`UNAVAILABLE`) and their Optuna samplers to ``HYPERPARAMS_SAMPLER``/
+``HYPERPARAMS_CONVERTER``. :func:`install` does that and makes rl-zoo3's train command cost-aware (used by
+``sppo-train``):
 
 - every env that rl-zoo3 creates gets :class:`~sppo_sb3.common.monitor.EpisodeCostInfo` inside its ``Monitor``,
   whose ``monitor.csv`` gains the columns ``episode_cost`` and ``episode_violations``;
@@ -22,7 +23,6 @@ command cost-aware (used by ``sppo-train``):
 
 from __future__ import annotations
 
-import importlib
 import json
 import os
 import warnings
@@ -43,16 +43,9 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from torch import nn
 
 import sppo_sb3  # noqa: F401  (registers the tasks with gymnasium)
+from sppo_sb3.algorithms import ALGORITHMS
 from sppo_sb3.common.monitor import CostEvalCallback, cost_monitored_make_vec_env
 
-#: zoo name -> (module, class) of the package's algorithms
-ALGO_IMPORTS: dict[str, tuple[str, str]] = {
-    "sppo": ("sppo_sb3.sppo", "SPPO"),
-    "cpo": ("sppo_sb3.cpo", "CPO"),
-    "pdo": ("sppo_sb3.pdo", "PDO"),
-    "sailr": ("sppo_sb3.sailr", "SAILR"),
-    "csc": ("sppo_sb3.csc", "CSC"),
-}
 #: algorithms that could not be imported, with the reason
 UNAVAILABLE: dict[str, str] = {}
 
@@ -66,9 +59,9 @@ _ZOO_KWARGS_KEYS = frozenset({"policy_kwargs", "replay_buffer_kwargs", "monitor_
 def algo_classes() -> dict[str, type[BaseAlgorithm]]:
     """The package's algorithms that import, by zoo name (the others go to :data:`UNAVAILABLE`, with a warning)."""
     classes: dict[str, type[BaseAlgorithm]] = {}
-    for name, (module_name, class_name) in ALGO_IMPORTS.items():
+    for name, algo in ALGORITHMS.items():
         try:
-            classes[name] = getattr(importlib.import_module(module_name), class_name)
+            classes[name] = algo.load_class()
             UNAVAILABLE.pop(name, None)
         except Exception as exc:  # a module being written must not break the other algorithms
             UNAVAILABLE[name] = f"{type(exc).__name__}: {exc}"
@@ -150,23 +143,23 @@ def sample_sppo_params(trial: optuna.Trial, n_actions: int, n_envs: int, additio
 
 
 def register_samplers(classes: dict[str, type[BaseAlgorithm]] | None = None) -> None:
-    """Register SPPO's sampler, and rl-zoo3's PPO sampler for PDO/SAILR/CSC and TRPO sampler for CPO.
+    """Register each algorithm's Optuna search space (:attr:`~sppo_sb3.algorithms.Algorithm.sampler`).
 
+    SPPO has its own (:func:`sample_sppo_params`); PDO, SAILR and CSC use rl-zoo3's PPO sampler, CPO its TRPO sampler.
     Entries already present (a user's own sampler) are kept.
 
     :param classes: the available algorithms (default: all that import).
     """
     opt = zoo_opt  # rl-zoo3 keeps its samplers in hyperparams_opt
     classes = algo_classes() if classes is None else classes
-    table: dict[str, tuple[Callable[..., dict[str, Any]], Callable[[dict[str, Any]], dict[str, Any]]]] = {
+    search_spaces: dict[str, tuple[Callable[..., dict[str, Any]], Callable[[dict[str, Any]], dict[str, Any]]]] = {
         "sppo": (sample_sppo_params, convert_sppo_params),
-        "pdo": (opt.sample_ppo_params, opt.convert_onpolicy_params),
-        "sailr": (opt.sample_ppo_params, opt.convert_onpolicy_params),
-        "csc": (opt.sample_ppo_params, opt.convert_onpolicy_params),
-        "cpo": (opt.sample_trpo_params, opt.convert_onpolicy_params),
+        "ppo": (opt.sample_ppo_params, opt.convert_onpolicy_params),
+        "trpo": (opt.sample_trpo_params, opt.convert_onpolicy_params),
     }
-    for name, (sampler, converter) in table.items():
-        if name in classes:
+    for name, algo in ALGORITHMS.items():
+        if name in classes and algo.sampler is not None:
+            sampler, converter = search_spaces[algo.sampler]
             opt.HYPERPARAMS_SAMPLER.setdefault(name, sampler)  # type: ignore[arg-type]
             opt.HYPERPARAMS_CONVERTER.setdefault(name, converter)  # type: ignore[arg-type]
 
@@ -319,7 +312,11 @@ class SafeExperimentManager(ExperimentManager):
         self.report_safety(model)
 
     def report_safety(self, model: BaseAlgorithm) -> None:
-        """Print the model's safety summary (SPEC §5) and write it to ``safety_summary.json`` in the run folder."""
+        """Print the model's safety summary and write it to ``safety_summary.json`` in the run folder.
+
+        The summary holds the paper's training-safety metrics (Section V-B-2: cumulative constraint violations,
+        safety rate) with the episodes' return and the shield's interventions.
+        """
         metrics = getattr(model, "safety_metrics", None)
         print(f"========== Safety summary: {self.algo} on {self.env_name.gym_id} ==========")
         if metrics is None:

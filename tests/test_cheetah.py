@@ -178,5 +178,5 @@ def test_picklable_and_registered(env: SafeHalfCheetahHeightEnv, states: dict[st
     assert len(rule.warm_starts.keys) == 1
     assert len(pickle.loads(pickle.dumps(rule)).warm_starts.keys) == 0  # ... which belongs to the running episode
     assert isinstance(default_shielding_rule("SafeHalfCheetahHeight-v1"), HalfCheetahHeightShieldingRule)
-    default = env.default_shielding_rule()
+    default = default_shielding_rule("SafeHalfCheetahHeight-v1", env)
     assert (default.eta, default.gamma, default.alpha, default.horizon, default.n_particles) == (0.2, 0.99, 0.05, 15, 64)

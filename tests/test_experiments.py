@@ -1,19 +1,21 @@
-"""The experiment tooling end to end: scripts/benchmark.py on a tiny grid, then scripts/plot_results.py on its output.
+"""The experiment tooling end to end: the benchmark on a tiny grid, then the plots on its output.
 
+The command lines of scripts/benchmark.py and scripts/plot_results.py (:mod:`sppo_sb3.experiments`), called in process;
 2 algorithms x 1 task x 2 seeds with a few hundred env steps and tiny networks (a hyperparameter folder written to
 ``tmp_path``), each run a real ``python -m sppo_sb3.train`` subprocess. Most of the time is the runs' start-up.
 """
 
 from __future__ import annotations
 
-import importlib.util
 import json
+import subprocess
 import sys
 from pathlib import Path
-from types import ModuleType
 
 import pandas as pd
 import pytest
+
+from sppo_sb3.experiments import benchmark, configs, grid, layout, plot, stats
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 TASK = "SafePointCircle-v0"
@@ -59,24 +61,6 @@ SUMMARY_KEYS = {
 }
 
 
-def _load_script(name: str) -> ModuleType:
-    """Import ``scripts/<name>.py`` as a module (scripts/ is not a package)."""
-    module_name = f"_sppo_scripts_{name}"
-    if module_name in sys.modules:
-        return sys.modules[module_name]
-    spec = importlib.util.spec_from_file_location(module_name, SCRIPTS / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[module_name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-@pytest.fixture(scope="module")
-def benchmark() -> ModuleType:
-    return _load_script("benchmark")
-
-
 @pytest.fixture(scope="module")
 def tiny_hyperparams(tmp_path_factory: pytest.TempPathFactory) -> Path:
     folder = tmp_path_factory.mktemp("hyperparams")
@@ -107,23 +91,23 @@ def _grid_args(out: Path, hyperparams: Path) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def grid(benchmark: ModuleType, tiny_hyperparams: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+def grid_out(tiny_hyperparams: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Run the tiny grid once for the tests of this module."""
     out = tmp_path_factory.mktemp("results")
     assert benchmark.main(_grid_args(out, tiny_hyperparams)) == 0
     return out
 
 
-def test_runner_writes_curves_and_summaries(benchmark: ModuleType, grid: Path) -> None:
+def test_runner_writes_curves_and_summaries(grid_out: Path) -> None:
     for algo in ALGOS:
         for seed in SEEDS:
-            run_dir = grid / TASK / algo / f"seed_{seed}"
+            run_dir = grid_out / TASK / algo / f"seed_{seed}"
             for name in ("DONE", "summary.json", "curve.csv", "train.log", "hyperparams.yml"):
                 assert (run_dir / name).is_file(), f"{run_dir / name} missing"
             assert not (run_dir / "FAILED").exists()
             assert list((run_dir / "zoo").rglob("*monitor.csv")), "rl-zoo3's monitor.csv missing"
             curve = pd.read_csv(run_dir / "curve.csv")
-            assert tuple(curve.columns) == benchmark.CURVE_COLUMNS
+            assert tuple(curve.columns) == layout.CURVE_COLUMNS
             assert len(curve) >= 1 and curve["timesteps"].is_monotonic_increasing
             assert (curve["cumulative_violations"] == curve["violations"].cumsum()).all()
             summary = json.loads((run_dir / "summary.json").read_text())
@@ -135,22 +119,19 @@ def test_runner_writes_curves_and_summaries(benchmark: ModuleType, grid: Path) -
             assert "-m sppo_sb3.train" in summary["command"] and f"--seed {seed}" in summary["command"]
 
 
-def test_runner_skips_finished_runs(
-    benchmark: ModuleType, grid: Path, tiny_hyperparams: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    markers = sorted(grid.glob("*/*/seed_*/DONE"))
+def test_runner_skips_finished_runs(grid_out: Path, tiny_hyperparams: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    markers = sorted(grid_out.glob("*/*/seed_*/DONE"))
     assert len(markers) == len(ALGOS) * len(SEEDS)
     stamps = [m.stat().st_mtime_ns for m in markers]
-    assert benchmark.main(_grid_args(grid, tiny_hyperparams)) == 0
+    assert benchmark.main(_grid_args(grid_out, tiny_hyperparams)) == 0
     assert f"{len(markers)} already finished, 0 to run" in capsys.readouterr().out
     assert [m.stat().st_mtime_ns for m in markers] == stamps
 
 
-def test_plotter_writes_figures_and_tables(grid: Path, tmp_path: Path) -> None:
+def test_plotter_writes_figures_and_tables(grid_out: Path, tmp_path: Path) -> None:
     pytest.importorskip("matplotlib")
-    plot = _load_script("plot_results")
     out = tmp_path / "figures"
-    assert plot.main([str(grid), "--out", str(out)]) == 0
+    assert plot.main([str(grid_out), "--out", str(out)]) == 0
     for name in ("learning_curves.png", "violations.png", "cumulative_violations.png"):
         assert (out / name).stat().st_size > 1000
     tables = (out / "tables.md").read_text()
@@ -163,29 +144,29 @@ def test_plotter_writes_figures_and_tables(grid: Path, tmp_path: Path) -> None:
     assert set(aggregate["algo"]) == set(ALGOS) and (aggregate["seeds"] == len(SEEDS)).all()
     assert set(aggregate) >= {"cumulative_violations_mean", "safety_rate_mean", "safety_rate_std", "return_last_n_mean"}
     # Fig. 7 mode on the same folder: return curves and a returns table
-    assert plot.main([str(grid), "--out", str(out), "--fig7"]) == 0
+    assert plot.main([str(grid_out), "--out", str(out), "--fig7"]) == 0
     assert (out / "fig7_curves.png").is_file() and "| Return (last episodes) |" in (out / "fig7_table.md").read_text()
 
 
 def test_order_of_magnitude_notation() -> None:
-    plot = _load_script("plot_results")
-    assert [plot.order_of_magnitude(v) for v in (0, 3, 10, 99, 250, 4000)] == ["0", "10 ↓", "10 ↑", "10 ↑", "10^2 ↑", "10^3 ↑"]
+    notation = [stats.order_of_magnitude(v) for v in (0, 3, 10, 99, 250, 4000)]
+    assert notation == ["0", "10 ↓", "10 ↑", "10 ↑", "10^2 ↑", "10^3 ↑"]
 
 
-def test_steps_and_config_resolution(benchmark: ModuleType, tiny_hyperparams: Path) -> None:
-    assert benchmark.parse_steps(["1e4", f"{TASK}=300"]) == (10000, {TASK: 300})
+def test_steps_and_config_resolution(tiny_hyperparams: Path) -> None:
+    assert grid.parse_steps(["1e4", f"{TASK}=300"]) == (10000, {TASK: 300})
     with pytest.raises(ValueError, match="TASK=N"):
-        benchmark.parse_steps(["lots"])
+        grid.parse_steps(["lots"])
     # the package's algorithms need an entry for the task
     with pytest.raises(ValueError, match="no entry for Hopper-v5"):
-        benchmark.resolve_config("pdo", "Hopper-v5", tiny_hyperparams)
+        configs.resolve_config("pdo", "Hopper-v5", tiny_hyperparams)
     # rl-zoo3's built-in algorithms: its own file, or its -v4 entry under the -v5 id (Fig. 7)
-    assert benchmark.resolve_config("ppo", "CartPole-v1", tiny_hyperparams) is None
-    config = benchmark.resolve_config("ddpg", "HalfCheetah-v5", tiny_hyperparams)
+    assert configs.resolve_config("ppo", "CartPole-v1", tiny_hyperparams) is None
+    config = configs.resolve_config("ddpg", "HalfCheetah-v5", tiny_hyperparams)
     assert config is not None and "HalfCheetah-v5:" in config and "HalfCheetah-v4" in config
 
 
-def test_runner_on_local_ray(benchmark: ModuleType, tiny_hyperparams: Path, tmp_path: Path) -> None:
+def test_runner_on_local_ray(tiny_hyperparams: Path, tmp_path: Path) -> None:
     ray = pytest.importorskip("ray")
     ray.init(num_cpus=2, include_dashboard=False)
     try:
@@ -197,4 +178,37 @@ def test_runner_on_local_ray(benchmark: ModuleType, tiny_hyperparams: Path, tmp_
         ray.shutdown()
     run_dir = tmp_path / TASK / "pdo" / "seed_0"
     assert (run_dir / "DONE").is_file() and (run_dir / "train.log").is_file()
-    assert tuple(pd.read_csv(run_dir / "curve.csv").columns) == benchmark.CURVE_COLUMNS
+    assert tuple(pd.read_csv(run_dir / "curve.csv").columns) == layout.CURVE_COLUMNS
+
+
+def test_scripts_are_thin_command_lines_over_the_module(tmp_path: Path) -> None:
+    """``python scripts/benchmark.py`` keeps its flags, presets and output; its default config folder is the repo's."""
+    out = tmp_path / "quick"
+    cmd = [sys.executable, str(SCRIPTS / "benchmark.py"), "--quick", "--dry-run", "--out", str(out)]
+    result = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    lines = result.stdout.splitlines()
+    assert lines[0].startswith(f"10 runs (5 algorithms x 1 tasks x 2 seeds) -> {out}; 0 already finished, 10 to run with")
+    commands = lines[1:]
+    assert len(commands) == 10 and all("-m sppo_sb3.train" in c and "-n 2048" in c for c in commands)
+    assert [c.split("--algo ")[1].split()[0] for c in commands[::2]] == list(grid.OUR_ALGOS)
+    assert not out.exists()  # a dry run writes nothing
+    help_text = subprocess.run(
+        [sys.executable, str(SCRIPTS / "plot_results.py"), "--help"], capture_output=True, text=True, check=True
+    ).stdout
+    assert "--fig7" in help_text and "benchmark output folder" in help_text
+
+
+def test_run_folder_format_is_read_as_written(tmp_path: Path) -> None:
+    run_dir = layout.run_dir_for(tmp_path, "dm_control/cheetah-run-v0", "sppo", 3)
+    assert run_dir == tmp_path / "dm_control_cheetah-run-v0" / "sppo" / "seed_3"
+    run_dir.mkdir(parents=True)
+    layout.write_failed(run_dir, 2, "boom")
+    assert not layout.is_finished(run_dir) and layout.finished_run_dirs(tmp_path) == []
+    curve = pd.DataFrame({column: [1] for column in layout.CURVE_COLUMNS})
+    layout.write_finished(run_dir, {"task": "dm_control/cheetah-run-v0", "algo": "sppo"}, curve.to_csv(index=False))
+    assert layout.is_finished(run_dir) and not (run_dir / layout.FAILED_FILE).exists()
+    assert layout.finished_run_dirs(tmp_path) == [run_dir]
+    assert layout.read_summary(run_dir)["algo"] == "sppo"
+    assert tuple(layout.read_curve(run_dir).columns) == layout.CURVE_COLUMNS
+    summaries, curves = stats.load_results(tmp_path)
+    assert list(summaries["algo"]) == ["sppo"] and len(curves[("dm_control/cheetah-run-v0", "sppo")]) == 1

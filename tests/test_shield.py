@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import ast
 import io
+import subprocess
+import sys
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -11,16 +15,24 @@ import pytest
 import torch as th
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from stable_baselines3.common.vec_env import DummyVecEnv
 
-import sppo_sb3  # noqa: F401  (registers SafePointCircle-v0)
+import sppo_sb3  # registers SafePointCircle-v0 and SafeHalfCheetahHeight-v1
 from sppo_sb3.common.costs import COST_KEY, shaped_cost
 from sppo_sb3.envs.point_circle import PointParams, point_is_unsafe, point_step
+from sppo_sb3.sailr import SAILR
 from sppo_sb3.shield import (
+    RULE_ENV_PARAMETERS,
+    SHIELDING_RULES,
+    HalfCheetahHeightShieldingRule,
     LearnedCostCriticRule,
     PointCircleShieldingRule,
     ShieldingRule,
     ShieldWrapper,
+    default_shielding_rule,
     in_shielding_set,
+    register_shielding_rule,
+    resolve_shielding_rule,
 )
 from sppo_sb3.shield.wrapper import ADVANTAGE_KEY, PROPOSED_ACTION_KEY
 
@@ -445,3 +457,102 @@ def test_learned_rule_rejects_mismatched_state_and_inputs() -> None:
         LearnedCostCriticRule(gym.spaces.Box(-1.0, 1.0, (2,)), gym.spaces.Box(-1.0, 1.0, (1,)), lambda o: o, gamma=1.0)
     with pytest.raises(TypeError, match="Box"):
         LearnedCostCriticRule(gym.spaces.Discrete(3), gym.spaces.Box(-1.0, 1.0, (1,)), lambda o: o)
+
+
+# --------------------------------------------------------------------------------------------- registry
+ENV_MODULES = ("sppo_sb3.envs.point_circle", "sppo_sb3.envs.half_cheetah_height")
+ENVS_DIR = Path(sppo_sb3.__file__).parent / "envs"
+
+
+@pytest.mark.parametrize(
+    ("env_id", "alpha", "rule_class"),
+    [("SafePointCircle-v0", 0.3, PointCircleShieldingRule), ("SafeHalfCheetahHeight-v1", 0.1, HalfCheetahHeightShieldingRule)],
+)
+def test_auto_rule_is_built_from_the_env_parameters(env_id: str, alpha: float, rule_class: type) -> None:
+    """``shield="auto"`` gives the rule of the env made, with its ``alpha`` (it used to take the rule's default)."""
+    venv = DummyVecEnv([lambda: gym.make(env_id, alpha=alpha)])
+    for shield in ("auto", env_id):
+        rule = resolve_shielding_rule(shield, venv, required=True)
+        assert isinstance(rule, rule_class) and rule.alpha == alpha
+    assert default_shielding_rule(env_id, gym.make(env_id, alpha=alpha)).alpha == alpha  # a gymnasium env too
+    assert default_shielding_rule(env_id).alpha == gym.make(env_id).unwrapped.alpha  # no env: the task's default
+    # another task's rule named explicitly is not built from this env's parameters
+    other = "SafePointCircle-v0" if env_id != "SafePointCircle-v0" else "SafeHalfCheetahHeight-v1"
+    assert resolve_shielding_rule(other, venv, required=True).alpha == default_shielding_rule(other).alpha
+
+
+def test_auto_rule_of_an_algorithm_takes_the_env_alpha() -> None:
+    model = SAILR("MlpPolicy", gym.make("SafePointCircle-v0", alpha=0.3), shield="auto", n_steps=64, batch_size=32)
+    assert isinstance(model.shield_rule, PointCircleShieldingRule) and model.shield_rule.alpha == 0.3
+
+
+def test_registered_rule_env_parameters() -> None:
+    class AlphaRule(FirstCoordinateRule):
+        def __init__(self, alpha: float = 1.0) -> None:
+            super().__init__()
+            self.alpha = alpha
+
+    env_id = "RegistryParams-v0"
+    try:
+        register_shielding_rule(env_id, AlphaRule, env_parameters=("alpha",))
+        env = gym.make("SafePointCircle-v0", alpha=0.25)
+        assert default_shielding_rule(env_id, env).alpha == 0.25
+        assert default_shielding_rule(env_id).alpha == 1.0
+        register_shielding_rule(env_id, AlphaRule)  # re-registered without parameters: called without arguments
+        assert default_shielding_rule(env_id, env).alpha == 1.0
+        register_shielding_rule(env_id, AlphaRule, env_parameters=("no_such_attribute",))
+        with pytest.raises(ValueError, match="'no_such_attribute', which this env lacks"):
+            default_shielding_rule(env_id, env)
+        with pytest.raises(TypeError, match="sequence of attribute names"):
+            register_shielding_rule(env_id, AlphaRule, env_parameters="alpha")
+    finally:
+        SHIELDING_RULES.pop(env_id, None)
+        RULE_ENV_PARAMETERS.pop(env_id, None)
+
+
+@pytest.mark.parametrize("env_id", ["SafePointCircle-v0", "SafeHalfCheetahHeight-v1"])
+def test_env_default_shielding_rule_is_deprecated(env_id: str) -> None:
+    env = gym.make(env_id, alpha=0.2).unwrapped
+    with pytest.deprecated_call(match=rf"default_shielding_rule\('{env_id}', env\)"):
+        rule = env.default_shielding_rule()
+    assert type(rule) is SHIELDING_RULES[env_id] and rule.alpha == 0.2
+
+
+def test_env_modules_import_no_shield_code() -> None:
+    """The envs hold physics only: no env module imports :mod:`sppo_sb3.shield` (only the deprecation shim, lazily)."""
+    for path in sorted(ENVS_DIR.glob("*.py")):
+        if path.name == "deprecation.py":
+            continue
+        imported = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                imported.add(node.module or "")
+            elif isinstance(node, ast.Import):
+                imported.update(alias.name for alias in node.names)
+        assert not {name for name in imported if name.startswith("sppo_sb3.shield")}, path.name
+
+
+@pytest.mark.parametrize("module", ENV_MODULES)
+def test_env_module_alone_loads_no_shield_module(module: str) -> None:
+    """Imported and stepped in a fresh interpreter, without the package's ``__init__``, an env loads no shield code."""
+    code = f"""
+import importlib, importlib.util, sys, types
+import gymnasium as gym
+package = types.ModuleType("sppo_sb3")
+package.__path__ = list(importlib.util.find_spec("sppo_sb3").submodule_search_locations)
+sys.modules["sppo_sb3"] = package  # the package's __init__ imports every algorithm, and so the shield
+importlib.import_module({module!r})
+env_id = "SafePointCircle-v0" if "point" in {module!r} else "SafeHalfCheetahHeight-v1"
+env = gym.make(env_id)
+env.reset(seed=0)
+env.step(env.action_space.sample())
+print(" ".join(sorted(name for name in sys.modules if name.startswith("sppo_sb3"))))
+"""
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert module in loaded
+    assert not [name for name in loaded if name.startswith("sppo_sb3.shield")], loaded
+
+
+@pytest.mark.parametrize("module", [*ENV_MODULES, "sppo_sb3.shield.point", "sppo_sb3.shield.cheetah"])
+def test_modules_import_first_in_a_fresh_interpreter(module: str) -> None:
+    subprocess.run([sys.executable, "-c", f"import {module}"], check=True)

@@ -22,6 +22,7 @@ import pytest
 import yaml
 
 from sppo_sb3 import zoo
+from sppo_sb3.algorithms import ALGORITHMS, DISPLAY_ORDER, ZOO_BASELINES, Algorithm
 from sppo_sb3.common.monitor import COST_INFO_KEYWORDS, CostEvalCallback, EpisodeCostInfo, cost_monitored_make_vec_env
 
 REPO = Path(__file__).resolve().parents[1]
@@ -86,6 +87,29 @@ def test_all_algorithms_registered() -> None:
     for name in ALGOS:
         assert ZOO_ALGOS[name] is classes[name]
         assert name in HYPERPARAMS_SAMPLER and name in HYPERPARAMS_CONVERTER
+
+
+def test_one_list_of_algorithms_drives_the_zoo(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The zoo registers exactly the algorithms of ``sppo_sb3.algorithms`` with the search space each one names."""
+    from rl_zoo3 import hyperparams_opt as opt
+
+    assert set(TINY) == set(ALGORITHMS)  # this file exercises every algorithm of the list
+    assert sorted(DISPLAY_ORDER) == sorted([*ALGORITHMS, *ZOO_BASELINES])  # the plots know each one's place
+    classes = zoo.register_algos()
+    assert {name: cls.__name__ for name, cls in classes.items()} == {n: a.class_name for n, a in ALGORITHMS.items()}
+    assert opt.HYPERPARAMS_SAMPLER["sppo"] is zoo.sample_sppo_params
+    assert opt.HYPERPARAMS_SAMPLER["cpo"] is opt.sample_trpo_params
+    assert all(opt.HYPERPARAMS_SAMPLER[n] is opt.sample_ppo_params for n in ("pdo", "sailr", "csc"))
+    # an algorithm added to the list is registered from it; one that does not import is skipped and reported
+    broken = Algorithm("broken", "sppo_sb3.no_such_module", "Broken", "Broken", "k", sampler="ppo")
+    monkeypatch.setitem(ALGORITHMS, "broken", broken)
+    try:
+        with pytest.warns(UserWarning, match="'broken' is not available"):
+            classes = zoo.register_algos()
+        assert "broken" not in classes and set(classes) == set(ALGORITHMS) - {"broken"}
+        assert "ModuleNotFoundError" in zoo.UNAVAILABLE["broken"]
+    finally:
+        zoo.UNAVAILABLE.pop("broken", None)
 
 
 @pytest.mark.parametrize("algo", ALGOS)

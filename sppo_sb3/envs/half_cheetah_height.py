@@ -1,13 +1,16 @@
 """``SafeHalfCheetahHeight-v1``: SAILR's Half-Cheetah task (paper Section V-A).
 
-gymnasium's MuJoCo HalfCheetah (v5 model, ``frame_skip = 5``) is rewarded for running forward, but the height of
-the front thigh must stay in ``[0.4, 1.0]``: flipping, rearing up or slumping onto the front leg is a violation.
+gymnasium's MuJoCo HalfCheetah (v5 model, :data:`FRAME_SKIP` ``= 5``) is rewarded for running forward, but the height
+of the front thigh must stay in ``[0.4, 1.0]``: flipping, rearing up or slumping onto the front leg is a violation.
 The height is the z of body ``fthigh``'s frame origin (``data.xpos``), what SAILR's ``get_body_com("fthigh")``
 returns (mujoco-py's and gymnasium's ``get_body_com`` read the body frame, not the centre of mass): 0.70 at the
 default reset, the middle of the range.
 
 ``SafeHalfCheetahHeight-v0`` measured the thigh's centre of mass (``data.xipos``, 0.575 at reset): a different,
 tighter task. It is retired: making it raises :class:`gymnasium.error.DeprecatedEnv` pointing to v1.
+
+The module holds the physics only; the task's shielding rule (:class:`sppo_sb3.shield.HalfCheetahHeightShieldingRule`)
+is built on it by the shield registry.
 """
 
 from __future__ import annotations
@@ -22,7 +25,10 @@ from gymnasium.envs.mujoco.half_cheetah_v5 import HalfCheetahEnv
 from gymnasium.utils import EzPickle
 
 from sppo_sb3.common.costs import COST_KEY, shaped_cost
+from sppo_sb3.envs.deprecation import warn_default_shielding_rule
 
+#: physics steps per env step (the task's, shared by its shielding rule's rollouts)
+FRAME_SKIP = 5
 MIN_HEIGHT = 0.4
 MAX_HEIGHT = 1.0
 HEIGHT_BODY = "fthigh"
@@ -75,7 +81,7 @@ class SafeHalfCheetahHeightEnv(HalfCheetahEnv):
             raise ValueError(f"SafeHalfCheetahHeightEnv fixes {sorted(fixed & kwargs.keys())}: they define the task.")
         super().__init__(
             xml_file=half_cheetah_xml_path(),
-            frame_skip=5,
+            frame_skip=FRAME_SKIP,
             forward_reward_weight=0.2,  # reward = forward velocity / 5
             ctrl_cost_weight=0.0,
             exclude_current_positions_from_observation=True,
@@ -101,10 +107,8 @@ class SafeHalfCheetahHeightEnv(HalfCheetahEnv):
         return obs, float(reward), unsafe, truncated, info
 
     def default_shielding_rule(self) -> Any:
-        """The paper's shield for this task: MPPI backup and ``Q̄`` rolled on this MuJoCo model, ``η = 0.2``."""
-        from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule
-
-        return HalfCheetahHeightShieldingRule(alpha=self.alpha)
+        """Deprecated: ``sppo_sb3.shield.default_shielding_rule("SafeHalfCheetahHeight-v1", env)`` builds the rule."""
+        return warn_default_shielding_rule(self, "SafeHalfCheetahHeight-v1")
 
 
 def retired_v0(**kwargs: Any) -> gym.Env:

@@ -1,7 +1,11 @@
-"""``SafePointCircle-v0``: SAILR's Point Robot task (paper Section V-A, SPEC §3).
+"""``SafePointCircle-v0``: SAILR's Point Robot task (paper Section V-A-1, the constrained task of Table I).
 
 A point mass is rewarded for running fast around the circle of radius 5 but must keep ``|x| <= 2.5``: the optimal
-safe behaviour runs along the wall segments of the circle's inscribed strip.
+safe behaviour runs along the wall segments of the circle's inscribed strip. The violation indicator ``c(s, a)`` is
+that of Definition 1 and the shaped cost that of eq. 18.
+
+The module holds the physics only; the task's shielding rule (:class:`sppo_sb3.shield.PointCircleShieldingRule`) is
+built on it by the shield registry.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ import gymnasium as gym
 import numpy as np
 
 from sppo_sb3.common.costs import COST_KEY, shaped_cost
+from sppo_sb3.envs.deprecation import warn_default_shielding_rule
 
 
 @dataclass(frozen=True)
@@ -111,10 +116,8 @@ class SafePointCircleEnv(gym.Env[np.ndarray, np.ndarray]):
         return obs, reward, unsafe, False, info
 
     def default_shielding_rule(self) -> Any:
-        """The paper's shield for this task: braking backup, ``Q̄`` by rolling the known dynamics, ``η = 0``."""
-        from sppo_sb3.shield.point import PointCircleShieldingRule
-
-        return PointCircleShieldingRule(params=self.params, alpha=self.alpha)
+        """Deprecated: ``sppo_sb3.shield.default_shielding_rule("SafePointCircle-v0", env)`` builds the rule."""
+        return warn_default_shielding_rule(self, "SafePointCircle-v0")
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":

@@ -28,10 +28,15 @@ import numpy as np
 from mujoco import rollout as mj_rollout
 
 from sppo_sb3.common.costs import shaped_cost
-from sppo_sb3.envs.half_cheetah_height import HEIGHT_BODY, half_cheetah_xml_path, height_distance_to_unsafe, height_is_unsafe
+from sppo_sb3.envs.half_cheetah_height import (
+    FRAME_SKIP,
+    HEIGHT_BODY,
+    half_cheetah_xml_path,
+    height_distance_to_unsafe,
+    height_is_unsafe,
+)
 from sppo_sb3.shield.base import ShieldDecision, ShieldingRule, in_shielding_set
 
-FRAME_SKIP = 5
 _FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
 
 

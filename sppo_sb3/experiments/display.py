@@ -1,0 +1,50 @@
+"""How algorithms and tasks appear in the figures and tables: names, colours and order (from the one algorithm list)."""
+
+from __future__ import annotations
+
+from sppo_sb3.algorithms import ALGORITHMS, DISPLAY_ORDER, ZOO_BASELINES
+
+#: the paper's names of its constrained tasks
+TASK_NAMES: dict[str, str] = {"SafePointCircle-v0": "Point Robot", "SafeHalfCheetahHeight-v1": "Half-Cheetah"}
+
+
+def display_name(algo: str) -> str:
+    """``SPPO (ours)``, ``PDO``, ... for the listed algorithms, the name itself otherwise.
+
+    :param algo: rl-zoo3 name of the algorithm.
+    """
+    known = ALGORITHMS.get(algo) or ZOO_BASELINES.get(algo)
+    return known.display_name if known else algo
+
+
+def algo_color(algo: str) -> str | None:
+    """The algorithm's matplotlib colour (``None``: matplotlib's next one).
+
+    :param algo: rl-zoo3 name of the algorithm.
+    """
+    known = ALGORITHMS.get(algo) or ZOO_BASELINES.get(algo)
+    return known.color if known else None
+
+
+def algo_sort_key(algo: str) -> tuple[int, str]:
+    """Paper order first (:data:`~sppo_sb3.algorithms.DISPLAY_ORDER`), unknown algorithms after, alphabetically.
+
+    :param algo: algorithm name.
+    """
+    return (DISPLAY_ORDER.index(algo) if algo in DISPLAY_ORDER else len(DISPLAY_ORDER), algo)
+
+
+def task_title(task: str) -> str:
+    """``Point Robot (SafePointCircle-v0)`` for the paper's tasks, the id otherwise.
+
+    :param task: gymnasium id.
+    """
+    return f"{TASK_NAMES[task]} ({task})" if task in TASK_NAMES else task
+
+
+def task_sort_key(task: str) -> tuple[bool, str]:
+    """The paper's tasks first, then the others, each alphabetically.
+
+    :param task: gymnasium id.
+    """
+    return (task not in TASK_NAMES, task)

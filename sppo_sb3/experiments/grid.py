@@ -1,0 +1,116 @@
+"""The benchmark's grid: algorithms × tasks × seeds, its presets, and which of its runs are still to do."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+
+from sppo_sb3.algorithms import ALGORITHMS
+from sppo_sb3.experiments import layout
+from sppo_sb3.experiments.configs import resolve_config
+from sppo_sb3.experiments.runner import RunSpec
+
+#: the paper's comparison: the package's algorithms (configured by ``--hyperparams-dir/ALGO.yml``)
+OUR_ALGOS: tuple[str, ...] = tuple(ALGORITHMS)
+#: the paper's constrained tasks (Tables I and II)
+SAFE_TASKS: tuple[str, ...] = ("SafePointCircle-v0", "SafeHalfCheetahHeight-v1")
+#: Fig. 7: SPPO's planning-guided exploration against SB3's DDPG and PPO on gymnasium MuJoCo tasks
+FIG7_ALGOS: tuple[str, ...] = ("sppo", "ddpg", "ppo")
+FIG7_TASKS: tuple[str, ...] = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5")
+#: ``--quick``: a few minutes on a laptop (on-policy algorithms still collect one full rollout of ``n_steps``)
+QUICK_STEPS: dict[str, int] = {"SafePointCircle-v0": 2048, "SafeHalfCheetahHeight-v1": 256}
+QUICK_DEFAULT_STEPS = 2048
+QUICK_SEEDS = 2
+DEFAULT_SEEDS = 3
+#: what ``--quick`` runs when no ``--tasks`` are given (the Cheetah's MPC shield is slow on a CPU)
+QUICK_TASKS: tuple[str, ...] = ("SafePointCircle-v0",)
+
+
+def parse_steps(values: Iterable[str]) -> tuple[int | None, dict[str, int]]:
+    """``--steps`` values: ``N`` (every task) and/or ``TASK=N`` (one task).
+
+    :param values: the strings given.
+    :return: the default for all tasks (``None``: the yml's) and the per-task overrides.
+    """
+    default: int | None = None
+    per_task: dict[str, int] = {}
+    for value in values:
+        task, sep, number = value.rpartition("=")
+        try:
+            steps = int(float(number))
+        except ValueError:
+            raise ValueError(f"--steps {value!r}: expected N or TASK=N with an integer N") from None
+        if steps <= 0:
+            raise ValueError(f"--steps {value!r}: N must be positive")
+        if sep:
+            per_task[task] = steps
+        else:
+            default = steps
+    return default, per_task
+
+
+def quick_steps(tasks: Sequence[str], steps_default: int | None, steps_per_task: dict[str, int]) -> dict[str, int]:
+    """Per-task budgets of ``--quick``: the preset's, under an explicit ``--steps N``, under explicit ``--steps TASK=N``.
+
+    :param tasks: the grid's tasks.
+    :param steps_default: ``--steps N`` (``None``: not given).
+    :param steps_per_task: the ``--steps TASK=N`` values.
+    """
+    quick = {t: QUICK_STEPS.get(t, QUICK_DEFAULT_STEPS) if steps_default is None else steps_default for t in tasks}
+    return {**quick, **steps_per_task}
+
+
+def build_grid(
+    algos: Sequence[str],
+    tasks: Sequence[str],
+    seeds: Sequence[int],
+    out: Path,
+    hyperparams_dir: Path,
+    steps_default: int | None = None,
+    steps_per_task: dict[str, int] | None = None,
+    device: str = "auto",
+    zoo_args: Sequence[str] = (),
+    last_n: int = 10,
+) -> list[RunSpec]:
+    """All runs of the grid, tasks outermost (configs are checked for every pair before anything runs).
+
+    :param algos: algorithm names.
+    :param tasks: gymnasium ids.
+    :param seeds: seeds.
+    :param out: the grid's output folder.
+    :param hyperparams_dir: folder of the package's hyperparameter files.
+    :param steps_default: env steps of every run (``None``: the yml's ``n_timesteps``).
+    :param steps_per_task: per-task overrides of ``steps_default``.
+    :param device: PyTorch device.
+    :param zoo_args: extra train-command arguments.
+    :param last_n: final episodes averaged into the reported return.
+    :raises ValueError: a pair without hyperparameters.
+    """
+    per_task = steps_per_task or {}
+    specs = []
+    for task in tasks:
+        for algo in algos:
+            config_text = resolve_config(algo, task, hyperparams_dir)
+            for seed in seeds:
+                specs.append(
+                    RunSpec(
+                        task=task,
+                        algo=algo,
+                        seed=seed,
+                        run_dir=str(layout.run_dir_for(out, task, algo, seed)),
+                        steps=per_task.get(task, steps_default),
+                        config_text=config_text,
+                        device=device,
+                        zoo_args=list(zoo_args),
+                        last_n=last_n,
+                    )
+                )
+    return specs
+
+
+def is_done(spec: RunSpec) -> bool:
+    """Whether the run finished in an earlier invocation (see :func:`sppo_sb3.experiments.layout.is_finished`).
+
+    :param spec: the run.
+    """
+    return layout.is_finished(Path(spec.run_dir))

@@ -1,0 +1,91 @@
+"""The command line of ``scripts/plot_results.py``: the figures and tables of a benchmark output folder.
+
+Writes to ``--out`` the figures of :mod:`sppo_sb3.experiments.figures`, the tables of
+:mod:`sppo_sb3.experiments.tables` and ``aggregate.csv`` (:func:`~sppo_sb3.experiments.stats.aggregate`).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from pathlib import Path
+
+import pandas as pd
+
+from sppo_sb3.experiments.display import task_sort_key
+from sppo_sb3.experiments.figures import plot_curves, plot_violation_bars
+from sppo_sb3.experiments.stats import aggregate, load_results
+from sppo_sb3.experiments.tables import returns_table_markdown, safety_tables_markdown
+
+DESCRIPTION = "Figures and tables of the paper's comparison from a ``scripts/benchmark.py`` output folder."
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """Command-line options (see ``--help``).
+
+    :param argv: the arguments (default: ``sys.argv[1:]``).
+    """
+    parser = argparse.ArgumentParser(description=DESCRIPTION)
+    parser.add_argument("results", type=Path, nargs="?", default=Path("results"), help="benchmark output folder")
+    parser.add_argument("--out", type=Path, default=None, help="where figures and tables go (default: RESULTS/figures)")
+    parser.add_argument("--tasks", nargs="+", default=None, help="tasks to show (default: all found)")
+    parser.add_argument("--algos", nargs="+", default=None, help="algorithms to show (default: all found)")
+    parser.add_argument("--fig7", action="store_true", help="Fig. 7 mode: return curves and a returns table only")
+    parser.add_argument("--smooth", type=int, default=5, help="rolling mean over this many episodes (default: 5)")
+    parser.add_argument("--points", type=int, default=100, help="env-step grid of the mean ± std (default: 100)")
+    parser.add_argument("--dpi", type=int, default=100, help="PNG resolution (default: 100)")
+    return parser.parse_args(argv)
+
+
+def write_figures(
+    args: argparse.Namespace, summaries: pd.DataFrame, curves: dict[tuple[str, str], list[pd.DataFrame]], out: Path
+) -> list[str]:
+    """Write the figures and tables of the selected runs into ``out``; returns the files' names.
+
+    :param args: :func:`parse_args`'s result.
+    :param summaries: the selected runs' ``summary.json`` rows.
+    :param curves: their curves by ``(task, algo)``.
+    :param out: the output folder.
+    """
+    tasks = sorted(summaries["task"].unique(), key=task_sort_key)
+    table = aggregate(summaries)
+    if args.fig7:
+        plot_curves(curves, tasks, "return", "episode return", out / "fig7_curves.png", args.points, args.smooth, args.dpi)
+        (out / "fig7_table.md").write_text(returns_table_markdown(table))
+        written = ["fig7_curves.png", "fig7_table.md"]
+    else:
+        plot_curves(curves, tasks, "return", "episode return", out / "learning_curves.png", args.points, args.smooth, args.dpi)
+        plot_curves(
+            curves, tasks, "cumulative_violations", "cumulative violations", out / "cumulative_violations.png", args.points
+        )
+        plot_violation_bars(summaries, tasks, out / "violations.png", args.dpi)
+        (out / "tables.md").write_text(safety_tables_markdown(table))
+        written = ["learning_curves.png", "cumulative_violations.png", "violations.png", "tables.md"]
+    table.to_csv(out / "aggregate.csv", index=False)
+    return [*written, "aggregate.csv"]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Write the figures and tables; returns the exit status.
+
+    :param argv: command-line arguments (default: ``sys.argv[1:]``).
+    """
+    args = parse_args(argv)
+    summaries, curves = load_results(args.results)
+    if summaries.empty:
+        print(f"plot_results: no finished runs under {args.results} (expected <task>/<algo>/seed_<s>/summary.json)")
+        return 1
+    if args.tasks:
+        summaries = summaries[summaries["task"].isin(args.tasks)]
+    if args.algos:
+        summaries = summaries[summaries["algo"].isin(args.algos)]
+    if summaries.empty:
+        print("plot_results: no runs left after --tasks/--algos")
+        return 1
+    keep = set(zip(summaries["task"], summaries["algo"]))
+    curves = {key: value for key, value in curves.items() if key in keep}
+    out = args.out or args.results / "figures"
+    out.mkdir(parents=True, exist_ok=True)
+    written = write_figures(args, summaries, curves, out)
+    print(f"{len(summaries)} runs, {summaries['task'].nunique()} tasks -> {out}: {', '.join(written)}")
+    return 0

@@ -1,0 +1,228 @@
+"""Running the benchmark's runs: the train command of a run, one run, and many in parallel (local or on Ray).
+
+Every run is ``python -m sppo_sb3.train --algo ALGO --env TASK [-conf HYPERPARAMS/ALGO.yml] [-n STEPS] --seed S ...``
+in a subprocess, so it is exactly what a user gets from ``sppo-train``. Its results go to its run folder
+(:mod:`sppo_sb3.experiments.layout`).
+"""
+
+from __future__ import annotations
+
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from sppo_sb3.experiments import layout
+from sppo_sb3.experiments.summary import model_safety_summary, model_timesteps, read_monitor_curve, summarize
+
+#: largest ``train.log`` a Ray task sends back to the driver (its tail)
+MAX_REMOTE_LOG_CHARS = 200_000
+#: what reports a finished run to the driver: ``report(spec, result)``
+Report = Callable[["RunSpec", dict[str, Any]], None]
+
+
+@dataclass
+class RunSpec:
+    """One run of the grid.
+
+    :param task: gymnasium id of the task.
+    :param algo: rl-zoo3 name of the algorithm.
+    :param seed: random seed.
+    :param run_dir: the run's output folder (``OUT/<task>/<algo>/seed_<s>``), as seen by the driver.
+    :param steps: env steps (``-n``); ``None``: the hyperparameter file's ``n_timesteps``.
+    :param config_text: the yml given to ``-conf`` (written into the run folder); ``None``: rl-zoo3's own.
+    :param device: PyTorch device (``--device`` of the train command).
+    :param zoo_args: extra arguments for the train command (after the runner's own, so they win).
+    :param last_n: number of final episodes averaged into the reported return.
+    """
+
+    task: str
+    algo: str
+    seed: int
+    run_dir: str
+    steps: int | None = None
+    config_text: str | None = None
+    device: str = "auto"
+    zoo_args: list[str] = field(default_factory=list)
+    last_n: int = 10
+
+    @property
+    def label(self) -> str:
+        """``task / algo / seed`` for progress lines."""
+        return f"{self.task} / {self.algo} / seed {self.seed}"
+
+
+def train_command(spec: RunSpec, zoo_dir: Path, config_path: Path | None, python: str | None = None) -> list[str]:
+    """The ``python -m sppo_sb3.train ...`` command of a run.
+
+    :param spec: the run.
+    :param zoo_dir: rl-zoo3's log folder (``-f``).
+    :param config_path: the yml for ``-conf`` (``None``: rl-zoo3's own).
+    :param python: the interpreter (default: this one).
+    """
+    cmd = [python or sys.executable, "-m", "sppo_sb3.train", "--algo", spec.algo, "--env", spec.task]
+    if config_path is not None:
+        cmd += ["-conf", str(config_path)]
+    if spec.steps is not None:
+        cmd += ["-n", str(int(spec.steps))]
+    cmd += ["--seed", str(spec.seed), "-f", str(zoo_dir), "--eval-freq", "-1", "--num-threads", "1"]
+    cmd += ["--device", spec.device, *spec.zoo_args]
+    return cmd
+
+
+def dry_run_command(spec: RunSpec) -> list[str]:
+    """The train command the run will execute in its run folder (what ``--dry-run`` prints).
+
+    :param spec: the run.
+    """
+    run_dir = Path(spec.run_dir)
+    config = run_dir / layout.CONFIG_FILE if spec.config_text is not None else None
+    return train_command(spec, run_dir / layout.ZOO_DIR, config)
+
+
+def execute(spec_dict: dict[str, Any], work_dir: str | None = None) -> dict[str, Any]:
+    """Train one run and collect its results (runs in a local thread or as a Ray task).
+
+    :param spec_dict: the :class:`RunSpec` as a dict (plain data, for Ray).
+    :param work_dir: where the train command writes; ``None``: a temporary folder (a Ray task on another node),
+        whose log and curve are sent back in the result.
+    :return: ``{"ok", "summary", "curve_csv", "log", "log_tail", "returncode"}``.
+    """
+    spec = RunSpec(**spec_dict)
+    temporary = work_dir is None
+    root = Path(tempfile.mkdtemp(prefix="sppo_bench_")) if work_dir is None else Path(work_dir)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        layout.mark_unfinished(root)
+        zoo_dir = root / layout.ZOO_DIR
+        config_path = None
+        if spec.config_text is not None:
+            config_path = root / layout.CONFIG_FILE
+            config_path.write_text(spec.config_text)
+        cmd = train_command(spec, zoo_dir, config_path)
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
+        start = time.perf_counter()
+        with open(root / layout.LOG_FILE, "w") as log:
+            log.write(shlex.join(cmd) + "\n")
+            log.flush()
+            proc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, env=env, check=False)
+        wall_s = time.perf_counter() - start
+        log_text = (root / layout.LOG_FILE).read_text(errors="replace")
+        result: dict[str, Any] = {"ok": proc.returncode == 0, "returncode": proc.returncode, "summary": None}
+        result["log"] = log_text[-MAX_REMOTE_LOG_CHARS:] if temporary else None
+        result["log_tail"] = log_text[-4000:]
+        if proc.returncode == 0:
+            curve = read_monitor_curve(zoo_dir)
+            safety = model_safety_summary(zoo_dir)
+            result["summary"] = summarize(spec, curve, safety, wall_s, cmd, model_timesteps(zoo_dir))
+            result["curve_csv"] = curve.to_csv(index=False)
+        return result
+    finally:
+        if temporary:
+            shutil.rmtree(root, ignore_errors=True)
+
+
+def finalize(spec: RunSpec, result: dict[str, Any]) -> None:
+    """Write a run's results into its folder (and its ``DONE`` or ``FAILED`` marker).
+
+    :param spec: the run.
+    :param result: what :func:`execute` returned.
+    """
+    run_dir = Path(spec.run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    if result.get("log") is not None:
+        (run_dir / layout.LOG_FILE).write_text(result["log"])
+    if spec.config_text is not None and not (run_dir / layout.CONFIG_FILE).exists():
+        (run_dir / layout.CONFIG_FILE).write_text(spec.config_text)
+    if result["ok"]:
+        layout.write_finished(run_dir, result["summary"], result["curve_csv"])
+    else:
+        layout.write_failed(run_dir, result["returncode"], result["log_tail"])
+
+
+def progress_line(index: int, total: int, spec: RunSpec, result: dict[str, Any]) -> str:
+    """One line about a finished run.
+
+    :param index: how many runs have finished (this one included).
+    :param total: runs to do in this invocation.
+    :param spec: the run.
+    :param result: what :func:`execute` returned.
+    """
+    head = f"[{index}/{total}] {spec.label}"
+    if not result["ok"]:
+        return f"{head}: FAILED (exit {result['returncode']}), see {Path(spec.run_dir) / layout.FAILED_FILE}"
+    s = result["summary"]
+    return (
+        f"{head}: return(last {s['last_n']}) {s['return_last_n']:.2f}  violations {s['cumulative_violations']}  "
+        f"safety {s['safety_rate']:.1f}%  episodes {s['episodes']}  {s['steps']} steps in {s['wall_clock_s']:.0f} s "
+        f"({s['steps_per_s']:.1f} steps/s)"
+    )
+
+
+def _runner_failure(exc: Exception) -> dict[str, Any]:
+    """The result of a run whose runner itself failed (disk full, a lost Ray node): recorded, the others go on."""
+    return {"ok": False, "returncode": None, "log_tail": f"{type(exc).__name__}: {exc}", "log": None}
+
+
+def run_local(specs: Sequence[RunSpec], workers: int, report: Report) -> None:
+    """Run the specs as parallel local processes (one thread waits on each train subprocess).
+
+    :param specs: the runs.
+    :param workers: how many at once.
+    :param report: called in the main thread with each finished run.
+    """
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        futures = {pool.submit(execute, asdict(spec), spec.run_dir): spec for spec in specs}
+        for future in as_completed(futures):
+            spec = futures[future]
+            try:
+                result = future.result()
+            except Exception as exc:
+                result = _runner_failure(exc)
+            report(spec, result)
+
+
+def import_ray() -> Any:
+    """Import Ray (an optional extra) or fail with the install command."""
+    try:
+        import ray
+    except ImportError as exc:
+        raise SystemExit('--ray-address needs Ray, an optional extra: pip install "sppo_sb3[ray]"') from exc
+    return ray
+
+
+def run_ray(
+    specs: Sequence[RunSpec], address: str, report: Report, cpus_per_run: float = 1.0, shared_fs: bool = False
+) -> None:
+    """Run the specs as Ray tasks on an existing cluster; results are written by this (the driver's) process.
+
+    Every node needs the package installed (each run is its ``sppo_sb3.train`` command anyway).
+
+    :param specs: the runs.
+    :param address: the cluster's address (``auto``, ``ray://host:10001``, ``local`` for a fresh local instance).
+    :param report: called with each finished run.
+    :param cpus_per_run: CPUs Ray reserves for each run.
+    :param shared_fs: the output folder is visible from every node: runs write there directly (keeps ``zoo/``).
+    """
+    ray = import_ray()
+    if not ray.is_initialized():
+        ray.init(address=None if address == "local" else address)
+    remote = ray.remote(num_cpus=cpus_per_run)(execute)
+    pending = {remote.remote(asdict(spec), spec.run_dir if shared_fs else None): spec for spec in specs}
+    while pending:
+        done, _ = ray.wait(list(pending), num_returns=1)
+        for ref in done:
+            spec = pending.pop(ref)
+            try:
+                result = ray.get(ref)
+            except Exception as exc:
+                result = _runner_failure(exc)
+            report(spec, result)

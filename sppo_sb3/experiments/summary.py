@@ -1,0 +1,140 @@
+"""What a finished run reports: its learning curve from rl-zoo3's monitor files and its ``summary.json``.
+
+:func:`summarize` is the one place that decides what ``summary.json`` holds. A new figure goes there; to show it as a
+mean ± std over seeds, add its key to :data:`sppo_sb3.experiments.stats.AGGREGATED_KEYS` (``aggregate.csv``).
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import zipfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pandas as pd
+
+from sppo_sb3.experiments.layout import CURVE_COLUMNS
+
+if TYPE_CHECKING:
+    from sppo_sb3.experiments.runner import RunSpec
+
+
+def read_monitor_curve(zoo_dir: Path) -> pd.DataFrame:
+    """The learning curve of a run from rl-zoo3's ``*.monitor.csv`` files (all training envs, in time order).
+
+    :param zoo_dir: rl-zoo3's log folder of the run (searched recursively).
+    :return: a frame with :data:`~sppo_sb3.experiments.layout.CURVE_COLUMNS` (empty when no episode finished).
+    """
+    frames = []
+    for path in sorted(zoo_dir.rglob("*monitor.csv")):
+        frame = pd.read_csv(path, skiprows=1)
+        if not frame.empty:
+            frames.append(frame)
+    if not frames:
+        return pd.DataFrame({column: pd.Series(dtype=float) for column in CURVE_COLUMNS})
+    monitor = pd.concat(frames, ignore_index=True).sort_values("t", kind="stable").reset_index(drop=True)
+    cost = monitor["episode_cost"] if "episode_cost" in monitor else pd.Series(np.zeros(len(monitor)))
+    violations = monitor["episode_violations"] if "episode_violations" in monitor else pd.Series(np.zeros(len(monitor)))
+    curve = pd.DataFrame(
+        {
+            "timesteps": monitor["l"].cumsum().astype(np.int64),
+            "episode": np.arange(1, len(monitor) + 1),
+            "return": monitor["r"].astype(float),
+            "length": monitor["l"].astype(np.int64),
+            "cost": cost.astype(float).to_numpy(),
+            "violations": violations.astype(np.int64).to_numpy(),
+        }
+    )
+    curve["cumulative_violations"] = curve["violations"].cumsum()
+    curve["time"] = monitor["t"].astype(float)
+    return curve
+
+
+def model_timesteps(zoo_dir: Path) -> int | None:
+    """``num_timesteps`` of the final model that rl-zoo3 saved (``<env>.zip``; SB3 stores it in the zip's ``data``).
+
+    :param zoo_dir: rl-zoo3's log folder of the run.
+    """
+    for path in sorted(zoo_dir.glob("*/*/*.zip")):  # <algo>/<env>_<id>/<env>.zip, not best_model.zip or checkpoints
+        if path.stem == "best_model" or "_steps" in path.stem:
+            continue
+        try:
+            with zipfile.ZipFile(path) as archive:
+                return int(json.loads(archive.read("data"))["num_timesteps"])
+        except (KeyError, ValueError, OSError, zipfile.BadZipFile):
+            return None
+    return None
+
+
+def model_safety_summary(zoo_dir: Path) -> dict[str, Any] | None:
+    """The model's safety summary (``safety_summary.json``, written by ``sppo-train``), or ``None`` if it keeps none.
+
+    :param zoo_dir: rl-zoo3's log folder of the run (searched recursively).
+    """
+    safety_files = sorted(zoo_dir.rglob("safety_summary.json"))
+    return json.loads(safety_files[-1].read_text()) if safety_files else None
+
+
+def summarize(
+    spec: RunSpec,
+    curve: pd.DataFrame,
+    safety: dict[str, Any] | None,
+    wall_s: float,
+    cmd: Sequence[str],
+    timesteps: int | None = None,
+) -> dict[str, Any]:
+    """The ``summary.json`` of a run.
+
+    Return: mean of the last ``spec.last_n`` episodes. Cumulative violations, safety rate, episodes and shield
+    interventions come from the model's own safety summary (``safety_summary.json`` written by ``sppo-train``) when the
+    algorithm keeps one, else from the monitor curve. Throughput: env steps per second over the whole command, start-up
+    included (``steps_per_s``), and from the monitor's clock, env creation to the last finished episode
+    (``train_steps_per_s``).
+
+    :param spec: the run.
+    :param curve: its learning curve (:func:`read_monitor_curve`).
+    :param safety: the model's safety summary, or ``None``.
+    :param wall_s: wall-clock seconds of the train command.
+    :param cmd: the train command.
+    :param timesteps: env steps of the run (the saved model's ``num_timesteps``); ``None``: the safety summary's, else
+        the finished episodes' total length.
+    """
+    last = curve.tail(spec.last_n)
+    episodes = len(curve)
+    unsafe = int((curve["violations"] > 0).sum())
+    if timesteps is None:
+        timesteps = int(safety["num_timesteps"]) if safety and "num_timesteps" in safety else int(curve["length"].sum())
+    summary: dict[str, Any] = {
+        "task": spec.task,
+        "algo": spec.algo,
+        "seed": spec.seed,
+        "steps": timesteps,
+        "episodes": episodes,
+        "return_last_n": float(last["return"].mean()) if episodes else float("nan"),
+        "return_last_n_std": float(last["return"].std(ddof=0)) if episodes else float("nan"),
+        "last_n": int(min(spec.last_n, episodes)),
+        "cumulative_violations": int(curve["violations"].sum()),
+        "safety_rate": 100.0 * (episodes - unsafe) / episodes if episodes else float("nan"),
+        "cumulative_interventions": None,
+        "safety_source": "monitor",
+        "wall_clock_s": round(wall_s, 3),
+        "steps_per_s": timesteps / wall_s if wall_s > 0 else float("nan"),
+        "train_steps_per_s": float("nan"),
+        "command": shlex.join(cmd),
+    }
+    if episodes and float(curve["time"].iloc[-1]) > 0:  # without start-up: env creation to the last episode's end
+        summary["train_steps_per_s"] = float(curve["timesteps"].iloc[-1] / curve["time"].iloc[-1])
+    if safety:
+        summary.update(
+            episodes=int(safety.get("episodes", episodes)),
+            cumulative_violations=int(safety.get("cumulative_violations", summary["cumulative_violations"])),
+            safety_rate=float(safety.get("safety_rate", summary["safety_rate"])),
+            cumulative_interventions=int(safety.get("cumulative_interventions", 0)),
+            safety_source="safety_metrics",
+        )
+        if "eval_mean_reward" in safety:
+            summary["eval_mean_reward"] = float(safety["eval_mean_reward"])
+    return summary
