@@ -7,6 +7,11 @@ end, and two extra flags set the violation budget of hyperparameter search:
 
 ``--violation-budget B``  prune trials whose cumulative training violations exceed ``B`` (env: SPPO_VIOLATION_BUDGET)
 ``--violation-penalty P``  instead of pruning, objective = return - P * max(0, violations - B) (env: SPPO_VIOLATION_PENALTY)
+
+and one sets the deployment check at the end of training:
+
+``--deployment-episodes N``  evaluate the learned policy for N deterministic episodes with and without the shield
+(default 5; 0: skip), printed side by side and saved under ``deployment`` in ``safety_summary.json``
 """
 
 from __future__ import annotations
@@ -21,6 +26,9 @@ sppo_sb3 options (besides rl-zoo3's):
                          (default: $SPPO_VIOLATION_BUDGET, else no budget)
   --violation-penalty P  hyperparameter search: train over-budget trials to the end and return
                          mean eval return - P * max(0, violations - B) instead (default: $SPPO_VIOLATION_PENALTY)
+  --deployment-episodes N
+                         after training, evaluate the learned policy for N deterministic episodes with and without
+                         the shield (deployment safety; default 5, 0: skip)
 """
 
 
@@ -32,6 +40,7 @@ def _split_args(argv: Sequence[str]) -> tuple[argparse.Namespace, list[str]]:
     parser = argparse.ArgumentParser(add_help=False, allow_abbrev=False)
     parser.add_argument("--violation-budget", type=float, default=None)
     parser.add_argument("--violation-penalty", type=float, default=None)
+    parser.add_argument("--deployment-episodes", type=int, default=None)
     return parser.parse_known_args(list(argv))
 
 
@@ -45,7 +54,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     from sppo_sb3.zoo import install
 
     own, rest = _split_args(sys.argv[1:] if argv is None else argv)
-    install(violation_budget=own.violation_budget, violation_penalty=own.violation_penalty)
+    deployment = {} if own.deployment_episodes is None else {"deployment_episodes": own.deployment_episodes}
+    install(violation_budget=own.violation_budget, violation_penalty=own.violation_penalty, **deployment)
     if "-h" in rest or "--help" in rest:
         print(EXTRA_HELP)
     saved_argv = sys.argv

@@ -30,6 +30,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ClassVar
 
+import gymnasium as gym
 import numpy as np
 import optuna
 import rl_zoo3.exp_manager as zoo_exp_manager
@@ -44,6 +45,7 @@ from torch import nn
 
 import sppo_sb3  # noqa: F401  (registers the tasks with gymnasium)
 from sppo_sb3.algorithms import ALGORITHMS
+from sppo_sb3.common.evaluation import evaluate_deployment
 from sppo_sb3.common.monitor import CostEvalCallback, cost_monitored_make_vec_env
 
 #: algorithms that could not be imported, with the reason
@@ -51,6 +53,7 @@ UNAVAILABLE: dict[str, str] = {}
 
 BUDGET_ENV_VAR = "SPPO_VIOLATION_BUDGET"
 PENALTY_ENV_VAR = "SPPO_VIOLATION_PENALTY"
+DEFAULT_DEPLOYMENT_EPISODES = 5
 #: ``*_kwargs`` keys that rl-zoo3 handles itself (the others are evaluated when given as strings)
 _ZOO_KWARGS_KEYS = frozenset({"policy_kwargs", "replay_buffer_kwargs", "monitor_kwargs", "env_kwargs", "normalize_kwargs"})
 
@@ -254,6 +257,7 @@ class SafeExperimentManager(ExperimentManager):
 
     violation_budget: ClassVar[float | None] = None
     violation_penalty: ClassVar[float | None] = None
+    deployment_episodes: ClassVar[int] = DEFAULT_DEPLOYMENT_EPISODES
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -324,6 +328,9 @@ class SafeExperimentManager(ExperimentManager):
             return
         self.safety_summary = summary = metrics.summary()
         print(metrics.format_summary())
+        deployment = self.evaluate_deployments(model)
+        if deployment:
+            summary = {**summary, "deployment": deployment}  # type: ignore[dict-item]
         for callback in self.callbacks:
             if isinstance(callback, CostEvalCallback) and callback.evaluations_timesteps:
                 print(
@@ -336,8 +343,35 @@ class SafeExperimentManager(ExperimentManager):
         with open(os.path.join(self.save_path, "safety_summary.json"), "w") as file:
             json.dump({"num_timesteps": int(model.num_timesteps), **summary}, file, indent=2)
 
+    def evaluate_deployments(self, model: BaseAlgorithm) -> dict[str, dict[str, float]]:
+        """Deployment safety (Corollary 1): the learned policy with and without the shield, printed side by side.
 
-def install(violation_budget: float | None = None, violation_penalty: float | None = None) -> type[SafeExperimentManager]:
+        Runs :attr:`deployment_episodes` deterministic episodes of each deployment on a fresh env of the task (none when
+        0, or under ``VecNormalize``, whose statistics the raw env lacks).
+        """
+        episodes = self.deployment_episodes
+        if episodes <= 0 or self.normalize:
+            return {}
+        gym_id, env_kwargs = self.env_name.gym_id, dict(self.env_kwargs)
+
+        def make_env() -> gym.Env:
+            return gym.make(gym_id, **env_kwargs)
+
+        results = {
+            name: evaluate_deployment(model, make_env, episodes, shielded=shielded, seed=self.seed)
+            for name, shielded in (("eval", True), ("eval_unshielded", False))
+        }
+        print(f"deployment, {episodes} deterministic episodes each (the learned policy with / without the shield):")
+        for name, metrics in results.items():
+            print(f"  {name + '/':17s}" + "  ".join(f"{key}={value:.2f}" for key, value in metrics.items()))
+        return results
+
+
+def install(
+    violation_budget: float | None = None,
+    violation_penalty: float | None = None,
+    deployment_episodes: int = DEFAULT_DEPLOYMENT_EPISODES,
+) -> type[SafeExperimentManager]:
     """Register the algorithms and make rl-zoo3's train command cost-aware (idempotent).
 
     Replaces, in rl-zoo3's ``exp_manager`` module, ``make_vec_env`` by
@@ -347,6 +381,8 @@ def install(violation_budget: float | None = None, violation_penalty: float | No
 
     :param violation_budget: see the module docstring (``None``: the ``SPPO_VIOLATION_BUDGET`` variable).
     :param violation_penalty: see the module docstring (``None``: the ``SPPO_VIOLATION_PENALTY`` variable).
+    :param deployment_episodes: episodes of each deployment (with and without the shield) evaluated after training
+        (0: none).
     :return: the experiment manager class now used by ``rl_zoo3.train``.
     """
     import rl_zoo3.train as zoo_train
@@ -357,5 +393,6 @@ def install(violation_budget: float | None = None, violation_penalty: float | No
     zoo_exp_manager.TrialEvalCallback = SafeTrialEvalCallback  # type: ignore[misc]
     SafeExperimentManager.violation_budget = violation_budget
     SafeExperimentManager.violation_penalty = violation_penalty
+    SafeExperimentManager.deployment_episodes = deployment_episodes
     zoo_train.ExperimentManager = SafeExperimentManager  # type: ignore[misc]
     return SafeExperimentManager

@@ -150,18 +150,26 @@ def test_train_then_enjoy(algo: str, tmp_path: Path, monkeypatch: pytest.MonkeyP
 def test_train_cli_prints_safety_summary(tmp_path: Path) -> None:
     cmd = [sys.executable, "-m", "sppo_sb3.train", *train_args("pdo", tmp_path, 128)]
     cmd[cmd.index("--eval-freq") + 1] = "64"
-    cmd += ["--eval-episodes", "2"]
+    cmd += ["--eval-episodes", "2", "--deployment-episodes", "2"]
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     result = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
     assert f"Safety summary: pdo on {ENV}" in result.stdout
     assert "cumulative violations=" in result.stdout and "safety rate=" in result.stdout
     assert "eval/" in result.stdout and "mean_cost" in result.stdout
+    assert "with / without the shield" in result.stdout and "eval_unshielded/" in result.stdout
 
     run = tmp_path / "pdo" / f"{ENV}_1"
     summary = json.loads((run / "safety_summary.json").read_text())
     assert summary["num_timesteps"] == 128 and summary["episodes"] >= 2
-    assert {"cumulative_violations", "safety_rate", "ep_return_mean", "eval_mean_cost"} <= set(summary)
+    assert {"cumulative_violations", "safety_rate", "ep_return_mean", "eval_mean_cost", "deployment"} <= set(summary)
+    assert set(summary["deployment"]) == {"eval", "eval_unshielded"}
+    assert set(summary["deployment"]["eval_unshielded"]) == {
+        "mean_reward",
+        "mean_violations",
+        "safe_episode_rate",
+        "mean_interventions",
+    }
     evaluations = np.load(run / "evaluations.npz")
     assert evaluations["costs"].shape == evaluations["results"].shape == (2, 2)
 

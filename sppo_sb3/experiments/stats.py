@@ -23,6 +23,12 @@ AGGREGATED_KEYS: tuple[str, ...] = (
     "steps",
     "steps_per_s",
     "train_steps_per_s",
+    "eval_return",
+    "eval_violations",
+    "eval_safe_rate",
+    "eval_unshielded_return",
+    "eval_unshielded_violations",
+    "eval_unshielded_safe_rate",
 )
 
 

@@ -137,4 +137,19 @@ def summarize(
         )
         if "eval_mean_reward" in safety:
             summary["eval_mean_reward"] = float(safety["eval_mean_reward"])
+        summary.update(deployment_summary(safety.get("deployment", {})))
     return summary
+
+
+def deployment_summary(deployment: dict[str, dict[str, float]]) -> dict[str, float]:
+    """The learned policy deployed with and without the shield (``sppo-train``'s ``deployment``), as flat keys.
+
+    ``eval_return``, ``eval_violations`` (per episode) and ``eval_safe_rate`` (% of episodes) for the shielded
+    deployment; the same with ``eval_unshielded_`` for the policy alone.
+    """
+    flat = {}
+    for name, metrics in deployment.items():
+        flat[f"{name}_return"] = float(metrics["mean_reward"])
+        flat[f"{name}_violations"] = float(metrics["mean_violations"])
+        flat[f"{name}_safe_rate"] = float(metrics["safe_episode_rate"])
+    return flat
