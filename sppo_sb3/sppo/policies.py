@@ -12,6 +12,7 @@ from typing import Any
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.preprocessing import get_action_dim
 from stable_baselines3.common.type_aliases import PyTorchObs
 from torch import nn
 
@@ -169,7 +170,7 @@ class TOLDPolicy(BasePolicy):
         )
         self.latent_dim, self.encoder_dim, self.hidden_dim = latent_dim, encoder_dim, hidden_dim
         obs_dim = int(spaces.flatdim(observation_space))
-        action_dim = int(action_space.shape[0])
+        action_dim = get_action_dim(action_space)  # TOLD acts on flat actions, whatever the Box's shape
         self.model = TOLD(obs_dim, action_dim, latent_dim, encoder_dim, hidden_dim)
         self.model_target = copy.deepcopy(self.model)
         self.model_target.requires_grad_(False)

@@ -204,7 +204,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
             if self.compile is True:
                 raise ValueError("compile=True needs TOLDPolicy's default optimizer (Adam); pass compile=False for others.")
             compile = False
-        self.planner = MPPIPlanner(self.planner_config, self.action_space.shape[0], self.device, compile=compile)
+        self.planner = MPPIPlanner(self.planner_config, self.policy.model.action_dim, self.device, compile=compile)
         self._topo_update = CompiledFunction(topo_update, compile, self.device, "TOPO update")
         self._plan_mean = self._restore_warm_start()
         self._train_stats = th.zeros(len(TOPO_STATS), device=self.device)
@@ -264,19 +264,23 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
 
     # ------------------------------------------------------------------ exploration phase (Alg. 1 lines 3–9)
     def _propose_actions(self, obs: np.ndarray, learning_starts: int) -> np.ndarray:
-        """The unshielded planner's actions in [-1, 1]: uniform during warm-up, MPPI afterwards (Alg. 2)."""
+        """The unshielded planner's flat actions in [-1, 1]: uniform during warm-up, MPPI afterwards (Alg. 2)."""
         if self.num_timesteps < learning_starts:
-            return np.random.uniform(-1.0, 1.0, size=(len(obs), *self.action_space.shape)).astype(np.float32)
+            return np.random.uniform(-1.0, 1.0, size=(len(obs), self.planner.action_dim)).astype(np.float32)
         obs_tensor = th.as_tensor(obs, dtype=th.float32, device=self.device)
         actions, self._plan_mean = self.planner.plan(self.policy.model, obs_tensor, self._plan_mean, self.num_timesteps)
         return actions.cpu().numpy()
 
+    def _env_actions(self, scaled: np.ndarray) -> np.ndarray:
+        """Flat actions in [-1, 1] (the planner's and TOLD's) as a batch of actions of the env's units and shape."""
+        return self.policy.unscale_action(scaled.reshape(-1, *self.action_space.shape))
+
     def _shield(self, raw_obs: np.ndarray, env_actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Eq. 12 on every env at once: the executed actions (env units) and where the shield intervened."""
+        """Eq. 12 on every env at once: the executed actions (env units and shape) and where the shield intervened."""
         if self.shield_rule is None:
             return env_actions, np.zeros(len(env_actions), dtype=bool)
-        decision = self.shield_rule.shield(raw_obs, env_actions)
-        return decision.actions.astype(self.action_space.dtype), decision.intervened
+        decision = self.shield_rule.shield(raw_obs, env_actions)  # rules act on flat actions
+        return decision.actions.reshape(env_actions.shape).astype(self.action_space.dtype), decision.intervened
 
     def collect_rollouts(
         self,
@@ -296,7 +300,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         while should_collect_more_steps(train_freq, num_collected_steps, num_collected_episodes):
             raw_obs = self._last_original_obs if self._vec_normalize_env is not None else self._last_obs
             proposed = self._propose_actions(self._last_obs, learning_starts)  # type: ignore[arg-type]
-            proposed_env = self.policy.unscale_action(proposed)
+            proposed_env = self._env_actions(proposed)
             actions, intervened = self._shield(raw_obs, proposed_env)  # type: ignore[arg-type]
 
             new_obs, rewards, dones, infos = env.step(actions)
@@ -399,7 +403,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         else:
             with th.no_grad():
                 scaled = self.policy._predict(obs_tensor)
-        actions = self.policy.unscale_action(scaled.cpu().numpy())
+        actions = self._env_actions(scaled.cpu().numpy())
         if self.shield_at_predict:
             actions, _ = self._shield(raw_obs, actions)
         actions = np.clip(actions, self.action_space.low, self.action_space.high)
