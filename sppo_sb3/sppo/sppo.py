@@ -78,15 +78,15 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         ``custom_objects={"shield_rule": rule}``, or ``custom_objects={"shield": None}`` to load unshielded.
     :param absorbing: what ``B̃`` records after an intervention. ``"terminate"`` is the paper's ``M̃`` (nothing more of
         the episode); ``"restart"`` (default) makes every intervention an absorbing terminal and restarts ``B̃`` at the
-        next real state. Measured on SafePointCircle-v0 (6000 steps, seeds 0 and 1, both with 0 violations):
-        "restart" reached a mean training-episode return of 14.6 and evaluation return of 38.8 with 534
-        interventions, "terminate" -3.5 and -3.3 with 2110 — it keeps only one shielded example per episode,
-        so the planner learns slowly which proposals the shield rejects.
+        next real state. "terminate" keeps only one shielded example per episode, so the planner learns slowly which
+        proposals the shield rejects; the two are compared in ``docs/modules/sppo.md`` (Comments).
     :param absorbing_penalty: ``R̃`` of eq. 7; defaults to the rule's ``penalty``.
     :param planner_kwargs: :class:`MPPIConfig` overrides.
     :param topo_kwargs: :class:`TOPOConfig` overrides.
     :param plan_at_predict: ``predict`` plans with MPPI (``True``) or acts with the policy prior alone (fast).
     :param shield_at_predict: ``predict`` passes its actions through the shield.
+    :param replay_buffer_kwargs: extra arguments of :class:`ShieldedReplayBuffer` (``absorbing`` and the penalty come
+        from the arguments above).
     :param optimize_memory_usage: SB3's replay-buffer option; ``B̃`` needs explicit next observations, so only
         ``False`` (SB3's default) is accepted.
     :param compile: compile the planner (all ``J`` iterations of Alg. 2) and the whole TOPO update (Alg. 3) with
@@ -95,6 +95,16 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         of the schedule and each number of envs is compiled once, on first use: a run compiles ``H`` planner graphs
         for training (one per horizon; more for evaluation VecEnvs of other sizes) and one update graph, see
         :attr:`compile_stats`. The eager code is the reference and is used, after one warning, if compiling fails.
+    :param stats_window_size: episodes averaged in the ``rollout/`` logs and the ``safety/ep_*_mean`` values.
+    :param tensorboard_log: TensorBoard log folder (``None``: none).
+    :param policy_kwargs: arguments of :class:`TOLDPolicy` (the TOLD sizes, the optimiser).
+    :param verbose: 0 none, 1 info, 2 debug.
+    :param seed: seed of the random generators.
+    :param device: torch device (``"auto"``: CUDA where available).
+    :param _init_setup_model: build the networks now.
+
+    Measured effects of ``absorbing``, of the planner's ``max_rows`` and ``dtype`` and of TOLD's ELU are listed in
+    ``docs/modules/sppo.md`` (Comments), with the deviations from the paper.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"TOLDPolicy": TOLDPolicy, "MlpPolicy": TOLDPolicy}
