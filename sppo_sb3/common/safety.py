@@ -1,4 +1,4 @@
-"""Safety metrics of SPEC §5, kept the same way by every algorithm of the package.
+"""Safety metrics of the paper's Section V-B (Tables I and II), kept the same way by every algorithm of the package.
 
 Per episode: return, cost sum, violations, shield interventions. Over training: cumulative violations, safety
 rate (episodes without a violation / all episodes, in %) and cumulative interventions — the quantities of the

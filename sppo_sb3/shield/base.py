@@ -252,13 +252,13 @@ class ShieldingRule(ABC):
                 f"{type(self).__name__}.backup_action returned NaN/inf at the env's observations {obs.tolist()}: the "
                 "backup policy must return a finite action in every state the env can reach."
             )
-        low, high = action_space.low - 1e-6, action_space.high + 1e-6
+        low, high = action_space.low.reshape(-1) - 1e-6, action_space.high.reshape(-1) + 1e-6  # rules act on flat actions
         if np.any(backup < low) or np.any(backup > high):
             raise ValueError(
                 f"{type(self).__name__}.backup_action returned actions outside the env's action space "
                 f"[{action_space.low}, {action_space.high}]: clip the backup policy's output to the bounds."
             )
-        centre = np.broadcast_to((action_space.low + action_space.high) / 2.0, backup.shape)
+        centre = np.broadcast_to((action_space.low + action_space.high).reshape(-1) / 2.0, backup.shape)
         q = self.checked_cost_value(np.concatenate([probe, probe]), np.concatenate([backup, centre]))
         if not np.isfinite(q).all():
             raise ValueError(

@@ -79,7 +79,7 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
             raise RuntimeError("ShieldWrapper.step called before reset().")
         proposed = np.clip(np.asarray(action, dtype=np.float64), self._box.low, self._box.high)
         decision = self.rule.shield(self._obs[None], proposed[None])
-        safe = decision.actions[0].astype(self._box.dtype)
+        safe = decision.actions[0].reshape(self._box.shape).astype(self._box.dtype)  # the rule's actions are flat
         obs, reward, terminated, truncated, info = self.env.step(safe)
         intervened = bool(decision.intervened[0])
         info[INTERVENED_KEY] = intervened

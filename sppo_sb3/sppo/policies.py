@@ -14,6 +14,7 @@ from typing import Any
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.policies import BasePolicy
+from stable_baselines3.common.preprocessing import get_action_dim
 from stable_baselines3.common.type_aliases import PyTorchObs
 from torch import nn
 
@@ -21,8 +22,8 @@ from torch import nn
 class ELU(nn.ELU):
     """ELU (α = 1) whose no-grad forward takes ``max(x, exp(min(x, 0)) - 1)``: four vectorised passes.
 
-    PyTorch's CPU ELU kernel runs ~2.4× slower than that on a 536×512 batch, and the planner evaluates ELU on every
-    hidden layer of every rollout step (19% of its time with the stock kernel). With autograd on it is ``F.elu``.
+    The planner evaluates ELU on every hidden layer of every rollout step, and PyTorch's CPU ELU kernel is slower than
+    these four passes on the planner's shapes (measured in ``docs/modules/sppo.md``). With autograd on it is ``F.elu``.
     """
 
     def forward(self, x: th.Tensor) -> th.Tensor:
@@ -204,7 +205,7 @@ class TOLDPolicy(BasePolicy):
         self.latent_dim, self.encoder_dim, self.hidden_dim = latent_dim, encoder_dim, hidden_dim
         self.termination = termination
         obs_dim = int(spaces.flatdim(observation_space))
-        action_dim = int(action_space.shape[0])
+        action_dim = get_action_dim(action_space)  # TOLD acts on flat actions, whatever the Box's shape
         self.model = TOLD(obs_dim, action_dim, latent_dim, encoder_dim, hidden_dim, termination)
         self.model_target = copy.deepcopy(self.model)
         self.model_target.requires_grad_(False)

@@ -79,10 +79,8 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         ``custom_objects={"shield_rule": rule}``, or ``custom_objects={"shield": None}`` to load unshielded.
     :param absorbing: what ``B̃`` records after an intervention. ``"terminate"`` is the paper's ``M̃`` (nothing more of
         the episode); ``"restart"`` (default) makes every intervention an absorbing terminal and restarts ``B̃`` at the
-        next real state. Measured on SafePointCircle-v0 (6000 steps, seeds 0 and 1, both with 0 violations):
-        "restart" reached a mean training-episode return of 14.6 and evaluation return of 38.8 with 534
-        interventions, "terminate" -3.5 and -3.3 with 2110 — it keeps only one shielded example per episode,
-        so the planner learns slowly which proposals the shield rejects.
+        next real state. "terminate" keeps only one shielded example per episode, so the planner learns slowly which
+        proposals the shield rejects; the two are compared in ``docs/modules/sppo.md`` (Comments).
     :param absorbing_penalty: ``R̃`` of eq. 7; defaults to the rule's ``penalty``.
     :param termination_model: give TOLD a termination head, trained on ``B̃``'s terminal flags (absorbing
         interventions and real terminations, not time-limit truncations), and plan with it: eq. 10 adds no reward and
@@ -93,9 +91,12 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         learnable rule, :class:`~sppo_sb3.shield.LearnedCostCriticRule`, and an env reporting ``info["shaped_cost"]``.
         For tasks without a model to roll ``Q̄`` on: only the backup policy ``ζ`` has to be known. The rule starts
         knowing nothing (``Q̄ ≡ 0`` shields nothing), so it protects only once it has seen the task's costs.
+    :param planner_kwargs: :class:`MPPIConfig` overrides.
     :param topo_kwargs: :class:`TOPOConfig` overrides.
     :param plan_at_predict: ``predict`` plans with MPPI (``True``) or acts with the policy prior alone (fast).
     :param shield_at_predict: ``predict`` passes its actions through the shield.
+    :param replay_buffer_kwargs: extra arguments of :class:`ShieldedReplayBuffer` (``absorbing`` and the penalty come
+        from the arguments above).
     :param optimize_memory_usage: SB3's replay-buffer option; ``B̃`` needs explicit next observations, so only
         ``False`` (SB3's default) is accepted.
     :param compile: compile the planner (all ``J`` iterations of Alg. 2) and the whole TOPO update (Alg. 3) with
@@ -104,6 +105,16 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         of the schedule and each number of envs is compiled once, on first use: a run compiles ``H`` planner graphs
         for training (one per horizon; more for evaluation VecEnvs of other sizes) and one update graph, see
         :attr:`compile_stats`. The eager code is the reference and is used, after one warning, if compiling fails.
+    :param stats_window_size: episodes averaged in the ``rollout/`` logs and the ``safety/ep_*_mean`` values.
+    :param tensorboard_log: TensorBoard log folder (``None``: none).
+    :param policy_kwargs: arguments of :class:`TOLDPolicy` (the TOLD sizes, the optimiser).
+    :param verbose: 0 none, 1 info, 2 debug.
+    :param seed: seed of the random generators.
+    :param device: torch device (``"auto"``: CUDA where available).
+    :param _init_setup_model: build the networks now.
+
+    Measured effects of ``absorbing``, of the planner's ``max_rows`` and ``dtype`` and of TOLD's ELU are listed in
+    ``docs/modules/sppo.md`` (Comments), with the deviations from the paper.
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"TOLDPolicy": TOLDPolicy, "MlpPolicy": TOLDPolicy}
@@ -223,7 +234,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
             if self.compile is True:
                 raise ValueError("compile=True needs TOLDPolicy's default optimizer (Adam); pass compile=False for others.")
             compile = False
-        self.planner = MPPIPlanner(self.planner_config, self.action_space.shape[0], self.device, compile=compile)
+        self.planner = MPPIPlanner(self.planner_config, self.policy.model.action_dim, self.device, compile=compile)
         self._topo_update = CompiledFunction(topo_update, compile, self.device, "TOPO update")
         self._plan_mean = self._restore_warm_start()
         self._train_stats = th.zeros(len(TOPO_STATS), device=self.device)
@@ -283,19 +294,23 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
 
     # ------------------------------------------------------------------ exploration phase (Alg. 1 lines 3–9)
     def _propose_actions(self, obs: np.ndarray, learning_starts: int) -> np.ndarray:
-        """The unshielded planner's actions in [-1, 1]: uniform during warm-up, MPPI afterwards (Alg. 2)."""
+        """The unshielded planner's flat actions in [-1, 1]: uniform during warm-up, MPPI afterwards (Alg. 2)."""
         if self.num_timesteps < learning_starts:
-            return np.random.uniform(-1.0, 1.0, size=(len(obs), *self.action_space.shape)).astype(np.float32)
+            return np.random.uniform(-1.0, 1.0, size=(len(obs), self.planner.action_dim)).astype(np.float32)
         obs_tensor = th.as_tensor(obs, dtype=th.float32, device=self.device)
         actions, self._plan_mean = self.planner.plan(self.policy.model, obs_tensor, self._plan_mean, self.num_timesteps)
         return actions.cpu().numpy()
 
+    def _env_actions(self, scaled: np.ndarray) -> np.ndarray:
+        """Flat actions in [-1, 1] (the planner's and TOLD's) as a batch of actions of the env's units and shape."""
+        return self.policy.unscale_action(scaled.reshape(-1, *self.action_space.shape))
+
     def _shield(self, raw_obs: np.ndarray, env_actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Eq. 12 on every env at once: the executed actions (env units) and where the shield intervened."""
+        """Eq. 12 on every env at once: the executed actions (env units and shape) and where the shield intervened."""
         if self.shield_rule is None:
             return env_actions, np.zeros(len(env_actions), dtype=bool)
-        decision = self.shield_rule.shield(raw_obs, env_actions)
-        return decision.actions.astype(self.action_space.dtype), decision.intervened
+        decision = self.shield_rule.shield(raw_obs, env_actions)  # rules act on flat actions
+        return decision.actions.reshape(env_actions.shape).astype(self.action_space.dtype), decision.intervened
 
     def collect_rollouts(
         self,
@@ -315,7 +330,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         while should_collect_more_steps(train_freq, num_collected_steps, num_collected_episodes):
             raw_obs = self._last_original_obs if self._vec_normalize_env is not None else self._last_obs
             proposed = self._propose_actions(self._last_obs, learning_starts)  # type: ignore[arg-type]
-            proposed_env = self.policy.unscale_action(proposed)
+            proposed_env = self._env_actions(proposed)
             actions, intervened = self._shield(raw_obs, proposed_env)  # type: ignore[arg-type]
 
             new_obs, rewards, dones, infos = env.step(actions)
@@ -433,7 +448,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         else:
             with th.no_grad():
                 scaled = self.policy._predict(obs_tensor)
-        actions = self.policy.unscale_action(scaled.cpu().numpy())
+        actions = self._env_actions(scaled.cpu().numpy())
         if self.shield_at_predict:
             actions, _ = self._shield(raw_obs, actions)
         actions = np.clip(actions, self.action_space.low, self.action_space.high)
