@@ -4,6 +4,7 @@ loop every on-policy algorithm runs on (spaces, VecNormalize, SB3's warnings), e
 from __future__ import annotations
 
 import contextlib
+import warnings
 from typing import Any
 
 import numpy as np
@@ -184,6 +185,16 @@ def test_safety_metrics_see_the_original_rewards_under_vec_normalize(algo: type)
     np.testing.assert_allclose(returns, monitored, atol=1e-5)
     original = env.get_original_reward()
     assert not np.allclose(env.normalize_reward(original), original, atol=1e-2)  # the learner sees other rewards
+
+
+@pytest.mark.parametrize("algo", [PDO, CPO, SAILR, CSC])
+def test_recommends_the_cpu_off_the_cpu(algo: type) -> None:
+    """SB3's advice to run MLP policies on the CPU, as PPO gives it; device "meta" stands in for a GPU."""
+    with pytest.warns(UserWarning, match="primarily intended to run on the CPU"):
+        algo("MlpPolicy", "SafePointCircle-v0", device="meta", **_tiny(algo))
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*primarily intended to run on the CPU")
+        algo("MlpPolicy", "SafePointCircle-v0", device="cpu", **_tiny(algo))
 
 
 @pytest.mark.parametrize("algo", [PDO, CSC])

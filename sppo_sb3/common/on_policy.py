@@ -124,6 +124,14 @@ class SafeOnPolicyMixin:
                 f"'MlpPolicy' or subclass sppo_sb3.common.on_policy.CostActorCriticPolicy), got {type(self.policy).__name__}."
             )
 
+    def _maybe_recommend_cpu(self, mlp_class_name: str = "ActorCriticPolicy") -> None:
+        """SB3's advice to train MLP policies on the CPU, for this algorithm's own ``MlpPolicy`` class.
+
+        SB3 compares the policy's class name with ``ActorCriticPolicy``, which the cost-aware policies are not named.
+        """
+        mlp_policy = self.policy_aliases.get("MlpPolicy")
+        super()._maybe_recommend_cpu(mlp_class_name if mlp_policy is None else mlp_policy.__name__)  # type: ignore[misc]
+
     def _setup_learn(
         self,
         total_timesteps: int,
