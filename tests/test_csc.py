@@ -195,6 +195,28 @@ def test_loading_parameters_leaves_the_env_action_space_alone():
     np.testing.assert_array_equal(space.low, [-1.0, -1.0])
 
 
+class _MatrixActions(gym.ActionWrapper):
+    """The Point task behind a Box action space of shape (2, 2): the env executes the mean of the two rows."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (2, 2), np.float32)
+
+    def action(self, action: np.ndarray) -> np.ndarray:
+        return action.mean(axis=0)
+
+
+def test_multi_dimensional_box_actions():
+    """A Box of shape (2, 2): the sampler, the cost critic and predict work on the flattened actions."""
+    model = CSC("MlpPolicy", _MatrixActions(gym.make(ENV_ID)), seed=0, **TINY).learn(128)
+    assert model.num_timesteps == 128 and model.cost_buffer.size() == 128
+    obs = np.stack([model.observation_space.sample() for _ in range(3)])
+    for deterministic in (False, True):
+        actions, _ = model.predict(obs, deterministic=deterministic)
+        assert actions.shape == (3, 2, 2) and np.all(np.abs(actions) <= 1.0)
+    assert model.predict(obs[0], deterministic=True)[0].shape == (2, 2)
+
+
 def test_rejected_first_samples_count_as_interventions():
     """With a threshold no action meets, every executed step is the sampler's argmin: an intervention each."""
     model = CSC("MlpPolicy", ENV_ID, seed=0, **{**TINY, "cost_threshold": -1.0}).learn(64)

@@ -7,6 +7,7 @@ import contextlib
 import warnings
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
@@ -164,6 +165,17 @@ def test_callbacks_see_costs_and_can_stop(algo: type, tmp_path) -> None:
     assert len(list(tmp_path.glob("*.zip"))) == 1
 
 
+class _MatrixActions(gym.ActionWrapper):
+    """The Point task behind a Box action space of shape (2, 2): the env executes the mean of the two rows."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.action_space = spaces.Box(-1.0, 1.0, (2, 2), np.float32)
+
+    def action(self, action: np.ndarray) -> np.ndarray:
+        return action.mean(axis=0)
+
+
 def _tiny(algo: type) -> dict[str, Any]:
     """Small-budget arguments of each on-policy algorithm."""
     kwargs: dict[str, Any] = dict(n_steps=64, batch_size=32, policy_kwargs=dict(TINY))
@@ -171,6 +183,19 @@ def _tiny(algo: type) -> dict[str, Any]:
         kwargs.update(n_epochs=1, n_action_samples=4, cost_batch_size=16, cost_gradient_steps=2)
         kwargs["policy_kwargs"]["cost_net_arch"] = [16]
     return kwargs
+
+
+@pytest.mark.parametrize("algo", [PDO, CPO, SAILR, CSC])
+def test_multi_dimensional_box_actions(algo: type) -> None:
+    """A Box of shape (2, 2) trains, and predict returns actions of that shape."""
+    env = _MatrixActions(gym.make("SafePointCircle-v0"))
+    kwargs = {"shield": None} if algo is SAILR else {}  # the Point task's shield acts on its own (2,) actions
+    with pytest.warns(UserWarning, match="plain PPO") if algo is SAILR else contextlib.nullcontext():
+        model = algo("MlpPolicy", env, seed=0, **_tiny(algo), **kwargs)
+    model.learn(128)
+    assert model.num_timesteps == 128
+    actions, _ = model.predict(np.zeros((3, 4), dtype=np.float32), deterministic=True)
+    assert actions.shape == (3, 2, 2)
 
 
 @pytest.mark.parametrize("algo", [PDO, CPO, SAILR, CSC])

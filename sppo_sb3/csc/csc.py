@@ -284,7 +284,7 @@ class CSC(LagrangianMixin, SafeOnPolicyMixin, PPO):
         """The rejection sampler (CSC paper Alg. 1) on every step; a step whose first sample was rejected counts as an
         intervention. The rollout buffer keeps the executed (raw) action and its log-probability under ``π_old``."""
         sample, distribution = self.policy.sample_safe_actions(obs_tensor)
-        actions = sample.actions.cpu().numpy()
+        actions = sample.actions.cpu().numpy().reshape(-1, *self.action_space.shape)  # type: ignore[misc]
         log_probs = distribution.log_prob(sample.actions)
         values = self.policy.predict_values(obs_tensor)
         return ActionChoice(actions, values, log_probs, sample.first_rejected.cpu().numpy())
