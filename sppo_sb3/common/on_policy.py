@@ -68,7 +68,8 @@ class ActionChoice(NamedTuple):
 
 
 class SafeOnPolicyMixin:
-    """Cost-aware rollouts for SB3 on-policy algorithms. Put it first in the bases: ``class PDO(SafeOnPolicyMixin, PPO)``.
+    """Cost-aware rollouts for SB3 on-policy algorithms. Put it before the SB3 algorithm in the bases:
+    ``class CPO(SafeOnPolicyMixin, TRPO)``, ``class PDO(LagrangianMixin, SafeOnPolicyMixin, PPO)``.
 
     The subclass calls :meth:`_init_safety` in its ``__init__`` (after the SB3 base ``__init__`` with
     ``_init_setup_model=False`` and before ``_setup_model``). It gets:
