@@ -89,6 +89,16 @@ def test_two_envs():
     assert np.all(np.abs(actions) <= 1.0)
 
 
+def test_another_number_of_envs_starts_a_new_cost_buffer(tmp_path):
+    model = CSC("MlpPolicy", ENV_ID, seed=0, **TINY).learn(64)
+    model.save(tmp_path / "csc")
+    model.save_replay_buffer(tmp_path / "buffer")
+    loaded = CSC.load(tmp_path / "csc", env=make_vec_env(ENV_ID, n_envs=2, seed=1))
+    loaded.load_replay_buffer(tmp_path / "buffer")  # one env's transitions
+    loaded.learn(64)
+    assert loaded.cost_buffer.n_envs == 2 and loaded.cost_buffer.size() == 64  # one rollout of n_steps per env
+
+
 def test_missing_cost_raises():
     model = CSC("MlpPolicy", "Pendulum-v1", seed=0, **TINY)
     with pytest.raises(MissingCostError, match="info\\['cost'\\]"):

@@ -201,8 +201,9 @@ class CSC(LagrangianMixin, SafeOnPolicyMixin, PPO):
 
     @property
     def cost_buffer(self) -> ReplayBuffer:
-        """The cost critic's replay buffer, allocated on first use: a model loaded to deploy allocates none."""
-        if self._cost_buffer is None:
+        """The cost critic's replay buffer, allocated on first use (a model loaded to deploy allocates none), and anew
+        for a new env with another number of envs (the old transitions cannot be kept)."""
+        if self._cost_buffer is None or self._cost_buffer.n_envs != self.n_envs:
             self._cost_buffer = self._make_cost_buffer()
         return self._cost_buffer
 
@@ -226,18 +227,6 @@ class CSC(LagrangianMixin, SafeOnPolicyMixin, PPO):
         self.policy.cost_threshold = self.cost_threshold
         self.policy.n_action_samples = self.n_action_samples
         self.policy.reject_in_predict = self.reject_in_predict
-
-    def _setup_learn(
-        self,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        reset_num_timesteps: bool = True,
-        tb_log_name: str = "run",
-        progress_bar: bool = False,
-    ) -> tuple[int, BaseCallback]:
-        if self._cost_buffer is not None and self._cost_buffer.n_envs != self.n_envs:
-            self._cost_buffer = None  # a new env with another number of envs: the old transitions cannot be kept
-        return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_cost_buffer"]
