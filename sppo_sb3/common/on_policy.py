@@ -33,10 +33,9 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer, CostRolloutBufferSamples
 from sppo_sb3.common.cost_policy import CostActorCriticPolicy
 from sppo_sb3.common.cost_tracker import EpisodeCostTracker
-from sppo_sb3.common.costs import costs_from_infos
 from sppo_sb3.common.gae import compute_gae
 from sppo_sb3.common.lagrange import lagrange_update, lagrangian_advantage
-from sppo_sb3.common.safety import INTERVENED_KEY, SafetyMetrics
+from sppo_sb3.common.safety import SafetyMetrics
 
 __all__ = [
     "ActionChoice",
@@ -225,11 +224,7 @@ class SafeOnPolicyMixin:
         """
         if self._vec_normalize_env is not None:
             rewards = self._vec_normalize_env.get_original_reward()
-        costs = costs_from_infos(infos)
-        shielded = np.array([bool(info.get(INTERVENED_KEY, False)) for info in infos])
-        if intervened is not None:
-            shielded |= np.asarray(intervened, dtype=bool)
-        self.safety_metrics.update(np.asarray(rewards, dtype=np.float64), costs, np.asarray(dones, dtype=bool), shielded)
+        costs = self.safety_metrics.update_from_infos(rewards, dones, infos, intervened)
         self.cost_tracker.update(costs, dones)
         return costs
 
