@@ -6,10 +6,12 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure
 
 import sppo_sb3  # noqa: F401  (registers SafePointCircle-v0)
+from sppo_sb3.common.cost_buffer import CostRolloutBuffer
 from sppo_sb3.common.costs import MissingCostError
 from sppo_sb3.csc import CSC, CSCPolicy, rejection_sample_actions
 
@@ -44,7 +46,7 @@ def test_smoke_learn_logs_and_safety_metrics(tmp_path):
     assert model.lagrange_multiplier >= 0.0
     assert model.cost_buffer.size() == 256
     header = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
-    assert {"safety/cumulative_violations", "safety/safety_rate", "csc/lagrange_multiplier"} <= set(header)
+    assert {"safety/cumulative_violations", "safety/safety_rate", "train/lagrange_multiplier"} <= set(header)
     assert list(tmp_path.glob("events.out.tfevents*"))
 
 
@@ -85,6 +87,16 @@ def test_two_envs():
     actions, _ = model.predict(env.reset(), deterministic=False)
     assert actions.shape == (2, 2)
     assert np.all(np.abs(actions) <= 1.0)
+
+
+def test_another_number_of_envs_starts_a_new_cost_buffer(tmp_path):
+    model = CSC("MlpPolicy", ENV_ID, seed=0, **TINY).learn(64)
+    model.save(tmp_path / "csc")
+    model.save_replay_buffer(tmp_path / "buffer")
+    loaded = CSC.load(tmp_path / "csc", env=make_vec_env(ENV_ID, n_envs=2, seed=1))
+    loaded.load_replay_buffer(tmp_path / "buffer")  # one env's transitions
+    loaded.learn(64)
+    assert loaded.cost_buffer.n_envs == 2 and loaded.cost_buffer.size() == 64  # one rollout of n_steps per env
 
 
 def test_missing_cost_raises():
@@ -191,3 +203,40 @@ def test_loading_parameters_leaves_the_env_action_space_alone():
     params["policy"]["action_low"] = th.full_like(params["policy"]["action_low"], 3.0)
     model.set_parameters(params)
     np.testing.assert_array_equal(space.low, [-1.0, -1.0])
+
+
+class _MatrixActions(gym.ActionWrapper):
+    """The Point task behind a Box action space of shape (2, 2): the env executes the mean of the two rows."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (2, 2), np.float32)
+
+    def action(self, action: np.ndarray) -> np.ndarray:
+        return action.mean(axis=0)
+
+
+def test_multi_dimensional_box_actions():
+    """A Box of shape (2, 2): the sampler, the cost critic and predict work on the flattened actions."""
+    model = CSC("MlpPolicy", _MatrixActions(gym.make(ENV_ID)), seed=0, **TINY).learn(128)
+    assert model.num_timesteps == 128 and model.cost_buffer.size() == 128
+    obs = np.stack([model.observation_space.sample() for _ in range(3)])
+    for deterministic in (False, True):
+        actions, _ = model.predict(obs, deterministic=deterministic)
+        assert actions.shape == (3, 2, 2) and np.all(np.abs(actions) <= 1.0)
+    assert model.predict(obs[0], deterministic=True)[0].shape == (2, 2)
+
+
+def test_rejected_first_samples_count_as_interventions():
+    """With a threshold no action meets, every executed step is the sampler's argmin: an intervention each."""
+    model = CSC("MlpPolicy", ENV_ID, seed=0, **{**TINY, "cost_threshold": -1.0}).learn(64)
+    assert model.safety_metrics.steps == 64 and model.safety_metrics.interventions == 64
+
+
+def test_models_saved_with_sb3_rollout_buffer_still_load(tmp_path):
+    """CSC saved SB3's RolloutBuffer as its rollout_buffer_class before it ran on the shared loop."""
+    CSC("MlpPolicy", ENV_ID, seed=0, **TINY).save(tmp_path / "csc")
+    env = make_vec_env(ENV_ID, n_envs=1, seed=0)
+    loaded = CSC.load(tmp_path / "csc", env=env, custom_objects={"rollout_buffer_class": RolloutBuffer})
+    loaded.learn(64)
+    assert isinstance(loaded.rollout_buffer, CostRolloutBuffer) and loaded.safety_metrics.steps == 64

@@ -1,19 +1,27 @@
-"""The shared cost-aware on-policy machinery: cost GAE, the cost buffer, the cost critic head, the tracker, errors."""
+"""The shared cost-aware on-policy machinery: cost GAE, the cost buffer, the cost critic head, the tracker, the rollout
+loop every on-policy algorithm runs on (spaces, VecNormalize, SB3's warnings), errors."""
 
 from __future__ import annotations
 
 import contextlib
+import warnings
+from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
 from gymnasium import spaces
 from stable_baselines3.common.buffers import RolloutBuffer
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.logger import configure
+from stable_baselines3.common.vec_env import VecNormalize
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.common.costs import MissingCostError
 from sppo_sb3.common.on_policy import CostActorCriticPolicy, CostRolloutBuffer, EpisodeCostTracker, compute_gae
 from sppo_sb3.cpo import CPO
+from sppo_sb3.csc import CSC
 from sppo_sb3.pdo import PDO
 from sppo_sb3.sailr import SAILR
 
@@ -134,8 +142,6 @@ def test_wrong_buffer_or_policy_is_a_clear_error() -> None:
 
 
 def test_safety_metrics_logged(tmp_path) -> None:
-    from stable_baselines3.common.logger import configure
-
     model = PDO("MlpPolicy", "SafePointCircle-v0", n_steps=64, batch_size=32, n_epochs=1, policy_kwargs=TINY, seed=1)
     model.set_logger(configure(str(tmp_path), ["csv"]))
     model.learn(256)
@@ -144,7 +150,7 @@ def test_safety_metrics_logged(tmp_path) -> None:
     assert model.safety_metrics.steps == 256
 
 
-@pytest.mark.parametrize("algo", [PDO, CPO, SAILR])
+@pytest.mark.parametrize("algo", [PDO, CPO, SAILR, CSC])
 def test_callbacks_see_costs_and_can_stop(algo: type, tmp_path) -> None:
     from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback
 
@@ -153,7 +159,81 @@ def test_callbacks_see_costs_and_can_stop(algo: type, tmp_path) -> None:
             assert "costs" in self.locals and "infos" in self.locals
             return self.num_timesteps < 100
 
-    model = algo("MlpPolicy", "SafePointCircle-v0", n_steps=64, batch_size=32, policy_kwargs=TINY, seed=0)
+    model = algo("MlpPolicy", "SafePointCircle-v0", seed=0, **_tiny(algo))
     model.learn(256, callback=CallbackList([CheckpointCallback(64, str(tmp_path)), StopAt()]))
     assert model.num_timesteps == 100
     assert len(list(tmp_path.glob("*.zip"))) == 1
+
+
+class _MatrixActions(gym.ActionWrapper):
+    """The Point task behind a Box action space of shape (2, 2): the env executes the mean of the two rows."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.action_space = spaces.Box(-1.0, 1.0, (2, 2), np.float32)
+
+    def action(self, action: np.ndarray) -> np.ndarray:
+        return action.mean(axis=0)
+
+
+def _tiny(algo: type) -> dict[str, Any]:
+    """Small-budget arguments of each on-policy algorithm."""
+    kwargs: dict[str, Any] = dict(n_steps=64, batch_size=32, policy_kwargs=dict(TINY))
+    if algo is CSC:
+        kwargs.update(n_epochs=1, n_action_samples=4, cost_batch_size=16, cost_gradient_steps=2)
+        kwargs["policy_kwargs"]["cost_net_arch"] = [16]
+    return kwargs
+
+
+@pytest.mark.parametrize("algo", [PDO, CPO, SAILR, CSC])
+def test_multi_dimensional_box_actions(algo: type) -> None:
+    """A Box of shape (2, 2) trains, and predict returns actions of that shape."""
+    env = _MatrixActions(gym.make("SafePointCircle-v0"))
+    kwargs = {"shield": None} if algo is SAILR else {}  # the Point task's shield acts on its own (2,) actions
+    with pytest.warns(UserWarning, match="plain PPO") if algo is SAILR else contextlib.nullcontext():
+        model = algo("MlpPolicy", env, seed=0, **_tiny(algo), **kwargs)
+    model.learn(128)
+    assert model.num_timesteps == 128
+    actions, _ = model.predict(np.zeros((3, 4), dtype=np.float32), deterministic=True)
+    assert actions.shape == (3, 2, 2)
+
+
+@pytest.mark.parametrize("algo", [PDO, CPO, SAILR, CSC])
+def test_safety_metrics_see_the_original_rewards_under_vec_normalize(algo: type) -> None:
+    """The episode returns of the safety metrics are the env's (Monitor's), not VecNormalize's scaled rewards."""
+    env = VecNormalize(make_vec_env("SafePointCircle-v0", n_envs=2, seed=0, env_kwargs=dict(max_episode_steps=20)))
+    model = algo("MlpPolicy", env, seed=0, **_tiny(algo))
+    model.learn(128)
+    monitored = [info["r"] for info in model.ep_info_buffer]
+    returns = [episode["return"] for episode in model.safety_metrics.recent]
+    assert len(monitored) == len(returns) >= 6
+    np.testing.assert_allclose(returns, monitored, atol=1e-5)
+    original = env.get_original_reward()
+    assert not np.allclose(env.normalize_reward(original), original, atol=1e-2)  # the learner sees other rewards
+
+
+@pytest.mark.parametrize("algo", [PDO, CPO, SAILR, CSC])
+def test_recommends_the_cpu_off_the_cpu(algo: type) -> None:
+    """SB3's advice to run MLP policies on the CPU, as PPO gives it; device "meta" stands in for a GPU."""
+    with pytest.warns(UserWarning, match="primarily intended to run on the CPU"):
+        algo("MlpPolicy", "SafePointCircle-v0", device="meta", **_tiny(algo))
+    with warnings.catch_warnings():
+        warnings.filterwarnings("error", message=".*primarily intended to run on the CPU")
+        algo("MlpPolicy", "SafePointCircle-v0", device="cpu", **_tiny(algo))
+
+
+@pytest.mark.parametrize("algo", [PDO, CSC])
+def test_pdo_and_csc_share_one_lagrange_multiplier(algo: type, tmp_path) -> None:
+    """The same dual step on the tracker's measured episode cost (also when no episode ended), under one log key."""
+    model = algo("MlpPolicy", "SafePointCircle-v0", cost_limit=0.2, lagrange_lr=0.5, lagrange_init=0.1, **_tiny(algo))
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    tracker = model.cost_tracker
+    tracker.start_rollout()
+    for t in range(10):  # one episode of cost 1
+        tracker.update(np.array([1.0 if t == 9 else 0.0]), np.array([t == 9]))
+    assert model.update_lagrange_multiplier() == pytest.approx(0.1 + 0.5 * (1.0 - 0.2))
+    tracker.start_rollout()  # no episode ends in this rollout: the mean of the recent ones
+    assert model.update_lagrange_multiplier() == pytest.approx(0.5 + 0.5 * (1.0 - 0.2))
+    model.logger.dump(0)
+    header = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
+    assert {"train/lagrange_multiplier", "train/ep_cost_estimate"} <= set(header)

@@ -46,7 +46,7 @@ def test_lambda_rises_above_the_limit_and_falls_to_zero_below() -> None:
 
 
 def test_policy_advantage_is_the_lagrangian_combination() -> None:
-    model = PDO("MlpPolicy", "SafePointCircle-v0", initial_lambda=3.0, lagrange_lr=1e-9, cost_limit=0.0, **FAST)
+    model = PDO("MlpPolicy", "SafePointCircle-v0", lagrange_init=3.0, lagrange_lr=1e-9, cost_limit=0.0, **FAST)
     seen = {}
 
     class Grab(BaseCallback):
@@ -101,3 +101,13 @@ def test_pdo_seed_is_reproducible() -> None:
         return th.nn.utils.parameters_to_vector(model.policy.parameters()).detach().numpy()
 
     np.testing.assert_array_equal(run(), run())
+
+
+def test_initial_lambda_is_a_deprecated_name_of_lagrange_init() -> None:
+    with pytest.warns(DeprecationWarning, match="lagrange_init"):
+        model = PDO("MlpPolicy", "SafePointCircle-v0", initial_lambda=2.0, **FAST)
+    assert model.lagrange_multiplier == 2.0
+    with pytest.raises(ValueError, match="pass lagrange_init only"):
+        PDO("MlpPolicy", "SafePointCircle-v0", initial_lambda=2.0, lagrange_init=1.0, **FAST)
+    with pytest.raises(ValueError, match="lagrange_init must be >= 0"):
+        PDO("MlpPolicy", "SafePointCircle-v0", lagrange_init=-1.0, **FAST)

@@ -72,14 +72,23 @@ class SafetyMetrics:
         for env_idx in np.flatnonzero(dones):
             self._close_episode(int(env_idx))
 
-    def update_from_infos(self, rewards: np.ndarray, dones: np.ndarray, infos: Sequence[dict[str, Any]]) -> np.ndarray:
+    def update_from_infos(
+        self,
+        rewards: np.ndarray,
+        dones: np.ndarray,
+        infos: Sequence[dict[str, Any]],
+        intervened: np.ndarray | None = None,
+    ) -> np.ndarray:
         """Feed one VecEnv step from its ``infos`` (``info["cost"]``, and ``info["shield_intervened"]`` if set).
 
+        :param intervened: ``(n_envs,)`` interventions known besides the infos' (CSC's rejected samples).
         :return: the costs read from the infos.
         """
         costs = costs_from_infos(infos)
-        intervened = np.array([bool(info.get(INTERVENED_KEY, False)) for info in infos])
-        self.update(np.asarray(rewards, dtype=np.float64), costs, np.asarray(dones, dtype=bool), intervened)
+        intervened_infos = np.array([bool(info.get(INTERVENED_KEY, False)) for info in infos])
+        if intervened is not None:
+            intervened_infos |= np.asarray(intervened, dtype=bool)
+        self.update(np.asarray(rewards, dtype=np.float64), costs, np.asarray(dones, dtype=bool), intervened_infos)
         return costs
 
     def _close_episode(self, env_idx: int) -> None:

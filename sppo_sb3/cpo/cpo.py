@@ -32,7 +32,10 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import explained_variance
 
-from sppo_sb3.common.on_policy import CostActorCriticPolicy, CostRolloutBuffer, SafeOnPolicyMixin
+from sppo_sb3.common.cost_buffer import CostRolloutBuffer
+from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
+from sppo_sb3.common.cost_tracker import EPISODE_COST_KEY
+from sppo_sb3.common.on_policy import SafeOnPolicyMixin
 from sppo_sb3.cpo.policies import MlpPolicy
 
 SelfCPO = TypeVar("SelfCPO", bound="CPO")
@@ -158,7 +161,7 @@ class CPO(SafeOnPolicyMixin, TRPO):
     improves. Then ``V`` and ``V_C`` are regressed on their TD(λ) returns. Every other argument is sb3-contrib
     ``TRPO``'s.
 
-    :param policy: the policy model ("MlpPolicy": :class:`~sppo_sb3.common.on_policy.CostActorCriticPolicy`).
+    :param policy: the policy model ("MlpPolicy": :class:`~sppo_sb3.common.cost_policy.CostActorCriticPolicy`).
     :param env: the environment (must report ``info["cost"]``), or its registered id.
     :param learning_rate: learning rate of the two critics.
     :param n_steps: steps per env per rollout.
@@ -172,7 +175,7 @@ class CPO(SafeOnPolicyMixin, TRPO):
     :param gae_lambda: GAE ``λ`` of the reward and of the cost.
     :param use_sde: generalised state-dependent exploration.
     :param sde_sample_freq: gSDE noise resampling period.
-    :param rollout_buffer_class: ``None`` or a subclass of :class:`~sppo_sb3.common.on_policy.CostRolloutBuffer`.
+    :param rollout_buffer_class: ``None`` or a subclass of :class:`~sppo_sb3.common.cost_buffer.CostRolloutBuffer`.
     :param rollout_buffer_kwargs: kwargs of the rollout buffer.
     :param normalize_advantage: normalise the reward advantage (the cost advantage is only centred, its scale
         must match ``c``).
@@ -324,12 +327,14 @@ class CPO(SafeOnPolicyMixin, TRPO):
                 self._apply_step(actor_params, originals, th.zeros_like(step))
                 kl_value = 0.0
 
-        critic_logs = self._fit_critics(self.n_critic_updates, self.batch_size, reward_critic=True, frozen=actor_params)
+        critic_logs = fit_critics(
+            self.policy, self.rollout_buffer, self.n_critic_updates, self.batch_size, reward_critic=True, frozen=actor_params
+        )
         self._n_updates += 1
         buf = self.rollout_buffer
         self.logger.record("train/cpo_case", CPO_CASES[solution.case])
         self.logger.record("train/constraint_value", c)
-        self.logger.record("train/ep_cost_estimate", self.cost_tracker.estimate())
+        self.logger.record(EPISODE_COST_KEY, self.cost_tracker.estimate())
         if math.isfinite(solution.nu):
             self.logger.record("train/lagrange_nu", solution.nu)
         self.logger.record("train/is_line_search_success", float(success))

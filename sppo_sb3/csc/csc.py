@@ -1,7 +1,9 @@
 """CSC: Conservative Safety Critics (Bharadhwaj et al., "Conservative Safety Critics for Exploration", ICLR 2021).
 
-Design (SPEC §4). The policy optimiser is on-policy, as in the CSC paper (which takes a natural-gradient step on a
-Lagrangian): here a PPO clipped step, which is SB3's and the simplest to get right. Around it:
+The paper compares SPPO with CSC, "the variant of PDO [...] in which well-learned conservative critics are applied
+to filter unsafe behaviors" ([28], Section V-A.3). The policy optimiser is on-policy, as in the CSC paper (which
+takes a natural-gradient step on a Lagrangian): here a PPO clipped step, which is SB3's and the simplest to get
+right. Around it:
 
 * a conservative cost critic ``Q_C(s, a)`` trained off-policy from a replay buffer of every executed transition
   ``(s, a, c, s', done)``, with the CQL-style objective of the CSC paper's eq. 2: the Bellman error to
@@ -10,7 +12,11 @@ Lagrangian): here a PPO clipped step, which is SB3's and the simplest to get rig
 * the action-rejection sampler of the CSC paper's Alg. 1 on every executed step (``rejection_sample_actions``);
 * the primal-dual update: the PPO advantage is ``(A_R - λ A_C) / (1 + λ)`` with the critic's cost advantage
   ``A_C(s, a) = Q_C(s, a) - E_{a'~π_old}[Q_C(s, a')]`` (the gradient of the Lagrangian's ``λ E_{a~π}[Q_C]`` term),
-  and ``λ ≥ 0`` by dual ascent on the measured episode cost: ``λ ← max(0, λ + η_λ (Ĵ_C - χ))``.
+  and ``λ ≥ 0`` by dual ascent on the measured episode cost: ``λ ← max(0, λ + η_λ (Ĵ_C - χ))``, the multiplier of PDO
+  (:class:`~sppo_sb3.common.lagrange.LagrangianMixin`).
+
+Rollouts are the shared cost-aware loop (:class:`~sppo_sb3.common.on_policy.SafeOnPolicyMixin`) with two hooks: the
+sampler chooses the executed actions, and every transition also goes to the cost critic's replay buffer.
 """
 
 from __future__ import annotations
@@ -32,15 +38,14 @@ from stable_baselines3.common.utils import obs_as_tensor, polyak_update
 from stable_baselines3.common.vec_env import VecEnv
 from torch.nn import functional as F
 
-from sppo_sb3.common.costs import costs_from_infos
-from sppo_sb3.common.on_policy import lagrange_update, lagrangian_advantage
-from sppo_sb3.common.safety import SafetyMetrics
+from sppo_sb3.common.lagrange import LagrangianMixin, lagrangian_advantage
+from sppo_sb3.common.on_policy import ActionChoice, SafeOnPolicyMixin
 from sppo_sb3.csc.policies import CSCPolicy
 
 SelfCSC = TypeVar("SelfCSC", bound="CSC")
 
 
-class CSC(PPO):
+class CSC(LagrangianMixin, SafeOnPolicyMixin, PPO):
     """Conservative Safety Critics on top of PPO (see the module docstring for the design).
 
     Costs are read from ``info["cost"]`` (``MissingCostError`` otherwise). ``self.safety_metrics`` is fed every
@@ -89,6 +94,7 @@ class CSC(PPO):
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": CSCPolicy}
+    uses_cost_critic = False  # its cost critic is Q_C(s, a) of CSCPolicy, not the V_C(s) head of the shared loop
     policy: CSCPolicy
     _cost_buffer: ReplayBuffer | None
 
@@ -132,6 +138,9 @@ class CSC(PPO):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
+        self._init_lagrange(cost_limit, lagrange_init, lagrange_lr)
+        if cql_alpha < 0:
+            raise ValueError(f"cql_alpha must be >= 0, got {cql_alpha}")
         super().__init__(
             policy,
             env,
@@ -166,10 +175,6 @@ class CSC(PPO):
                     f"CSC supports Box observations only, got {self.observation_space}; "
                     "flatten Dict observations with gymnasium.wrappers.FlattenObservation."
                 )
-        for name, value in (("cost_limit", cost_limit), ("cql_alpha", cql_alpha), ("lagrange_init", lagrange_init)):
-            if value < 0:
-                raise ValueError(f"{name} must be >= 0, got {value}")
-        self.cost_limit = cost_limit
         self.cost_gamma = gamma if cost_gamma is None else cost_gamma
         self.cost_threshold = (1.0 - self.cost_gamma) * cost_limit if cost_threshold is None else cost_threshold
         self.n_action_samples = n_action_samples
@@ -182,23 +187,23 @@ class CSC(PPO):
         self.cost_gradient_steps = cost_gradient_steps
         self.cost_tau = cost_tau
         self.n_cost_baseline_samples = n_cost_baseline_samples
-        self.lagrange_multiplier = float(lagrange_init)
-        self.lagrange_lr = lagrange_lr
-        self.safety_metrics = SafetyMetrics(self.n_envs if self.env is not None else 1)
-        self._episodes_at_dual_update = 0
+        self._init_safety()
         if _init_setup_model:
             self._setup_model()
 
     # ----------------------------------------------------------------------------------------------- setup
     def _setup_model(self) -> None:
+        if self.rollout_buffer_class is RolloutBuffer:  # a model saved before CSC ran on the shared loop: SB3's default
+            self.rollout_buffer_class = None
         super()._setup_model()
         self._sync_policy()
         self._cost_buffer = None
 
     @property
     def cost_buffer(self) -> ReplayBuffer:
-        """The cost critic's replay buffer, allocated on first use: a model loaded to deploy allocates none."""
-        if self._cost_buffer is None:
+        """The cost critic's replay buffer, allocated on first use (a model loaded to deploy allocates none), and anew
+        for a new env with another number of envs (the old transitions cannot be kept)."""
+        if self._cost_buffer is None or self._cost_buffer.n_envs != self.n_envs:
             self._cost_buffer = self._make_cost_buffer()
         return self._cost_buffer
 
@@ -222,21 +227,6 @@ class CSC(PPO):
         self.policy.cost_threshold = self.cost_threshold
         self.policy.n_action_samples = self.n_action_samples
         self.policy.reject_in_predict = self.reject_in_predict
-
-    def _setup_learn(
-        self,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        reset_num_timesteps: bool = True,
-        tb_log_name: str = "run",
-        progress_bar: bool = False,
-    ) -> tuple[int, BaseCallback]:
-        self.safety_metrics.resize(self.n_envs)
-        if reset_num_timesteps or self._last_obs is None:  # SB3 resets the envs: running episodes start over
-            self.safety_metrics.restart_episodes()
-        if self._cost_buffer is not None and self._cost_buffer.n_envs != self.n_envs:
-            self._cost_buffer = None  # a new env with another number of envs: the old transitions cannot be kept
-        return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_cost_buffer"]
@@ -275,69 +265,39 @@ class CSC(PPO):
         rollout_buffer: RolloutBuffer,
         n_rollout_steps: int,
     ) -> bool:
-        """PPO's rollout loop with the rejection sampler on every step, the costs of ``info["cost"]`` fed to the
-        safety metrics and every transition stored in the cost critic's replay buffer.
-
-        The rollout buffer keeps the executed (raw) action and its log-probability under ``π_old``.
-        """
-        assert self._last_obs is not None, "No previous observation was provided"
-        assert isinstance(self.action_space, spaces.Box)
-        self.policy.set_training_mode(False)
+        """The shared cost-aware rollout loop, with the sampler settings handed to the policy first."""
         self._sync_policy()
-        n_steps = 0
-        rollout_buffer.reset()
-        callback.on_rollout_start()
+        return super().collect_rollouts(env, callback, rollout_buffer, n_rollout_steps)
 
-        while n_steps < n_rollout_steps:
-            with th.no_grad():
-                obs_tensor = obs_as_tensor(self._last_obs, self.device)  # type: ignore[arg-type]
-                sample, distribution = self.policy.sample_safe_actions(obs_tensor)
-                log_probs = distribution.log_prob(sample.actions)
-                values = self.policy.predict_values(obs_tensor)
-                critic_actions = self.policy.normalize_actions(sample.actions).cpu().numpy()
-            actions = sample.actions.cpu().numpy()
-            clipped_actions = np.clip(actions, self.action_space.low, self.action_space.high)
+    def _choose_actions(self, obs_tensor: th.Tensor | dict[str, th.Tensor]) -> ActionChoice:
+        """The rejection sampler (CSC paper Alg. 1) on every step; a step whose first sample was rejected counts as an
+        intervention. The rollout buffer keeps the executed (raw) action and its log-probability under ``π_old``."""
+        sample, distribution = self.policy.sample_safe_actions(obs_tensor)
+        actions = sample.actions.cpu().numpy().reshape(-1, *self.action_space.shape)  # type: ignore[misc]
+        log_probs = distribution.log_prob(sample.actions)
+        values = self.policy.predict_values(obs_tensor)
+        return ActionChoice(actions, values, log_probs, sample.first_rejected.cpu().numpy())
 
-            new_obs, rewards, dones, infos = env.step(clipped_actions)
-            costs = costs_from_infos(infos)
-            self.safety_metrics.update(rewards, costs, dones, sample.first_rejected.cpu().numpy())
-            self.num_timesteps += env.num_envs
-
-            callback.update_locals(locals())
-            if not callback.on_step():
-                return False
-
-            self._update_info_buffer(infos, dones)
-            n_steps += 1
-
-            next_obs = np.array(new_obs, copy=True)
-            for idx, done in enumerate(dones):
-                terminal_obs = infos[idx].get("terminal_observation")
-                if done and terminal_obs is not None:
-                    next_obs[idx] = terminal_obs
-                    if infos[idx].get("TimeLimit.truncated", False):  # bootstrap the reward on time-outs (SB3 #633)
-                        with th.no_grad():
-                            terminal_value = self.policy.predict_values(self.policy.obs_to_tensor(terminal_obs)[0])[0]
-                        rewards[idx] += self.gamma * terminal_value
-            self.cost_buffer.add(self._last_obs, next_obs, critic_actions, costs, dones, infos)  # type: ignore[arg-type]
-
-            rollout_buffer.add(
-                self._last_obs,  # type: ignore[arg-type]
-                actions,
-                rewards,
-                self._last_episode_starts,  # type: ignore[arg-type]
-                values,
-                log_probs,
-            )
-            self._last_obs = new_obs  # type: ignore[assignment]
-            self._last_episode_starts = dones
-
+    def _store_transition(
+        self,
+        obs: np.ndarray,
+        new_obs: np.ndarray,
+        actions: np.ndarray,
+        costs: np.ndarray,
+        dones: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        """Every executed transition ``(s, a, c, s', done)`` goes to the cost critic's replay buffer, with the action
+        clipped and rescaled to [-1, 1] and ``s'`` the terminal observation where an episode ended."""
+        next_obs = np.array(new_obs, copy=True)
+        for idx in np.flatnonzero(dones):
+            terminal_obs = infos[idx].get("terminal_observation")
+            if terminal_obs is not None:
+                next_obs[idx] = terminal_obs
         with th.no_grad():
-            values = self.policy.predict_values(obs_as_tensor(new_obs, self.device))  # type: ignore[arg-type]
-        rollout_buffer.compute_returns_and_advantage(last_values=values, dones=dones)
-        callback.update_locals(locals())
-        callback.on_rollout_end()
-        return True
+            flat_actions = th.as_tensor(actions, device=self.device).reshape(len(actions), -1)
+            critic_actions = self.policy.normalize_actions(flat_actions).cpu().numpy()
+        self.cost_buffer.add(obs, next_obs, critic_actions, costs, dones, infos)  # type: ignore[arg-type]
 
     # ----------------------------------------------------------------------------------------------- learning
     def train_cost_critic(self, gradient_steps: int, batch_size: int | None = None) -> dict[str, float]:
@@ -381,21 +341,6 @@ class CSC(PPO):
             q_means.append(q_data.mean().item())
         return {"td_loss": float(np.mean(td_losses)), "cql_gap": float(np.mean(gaps)), "q_data": float(np.mean(q_means))}
 
-    def update_lagrange_multiplier(self) -> float | None:
-        """Dual ascent ``λ ← max(0, λ + η_λ (Ĵ_C - χ))`` on the mean cost of the episodes finished since the last
-        update (CSC paper Alg. 1). No update while no episode has finished.
-
-        :return: ``Ĵ_C``, or None without a finished episode.
-        """
-        metrics = self.safety_metrics
-        new_episodes = min(metrics.episodes - self._episodes_at_dual_update, len(metrics.recent))
-        self._episodes_at_dual_update = metrics.episodes
-        if new_episodes <= 0:
-            return None
-        episode_cost = float(np.mean([ep["cost"] for ep in list(metrics.recent)[-new_episodes:]]))
-        self.lagrange_multiplier = lagrange_update(self.lagrange_multiplier, episode_cost, self.cost_limit, self.lagrange_lr)
-        return episode_cost
-
     def cost_advantages(self, observations: np.ndarray, actions: np.ndarray, chunk: int = 4096) -> np.ndarray:
         """``A_C(s, a) = Q_C(s, a) - mean_k Q_C(s, a_k)``, ``a_k ~ π_old(·|s)``, for flat batches of raw actions."""
         policy = self.policy
@@ -416,30 +361,21 @@ class CSC(PPO):
         self._sync_policy()
         self.policy.set_training_mode(True)
         critic_stats = self.train_cost_critic(self.cost_gradient_steps)
-        episode_cost = self.update_lagrange_multiplier()
+        lam = self.update_lagrange_multiplier()
 
         buffer = self.rollout_buffer
         n_steps, n_envs = buffer.advantages.shape
         flat_obs = buffer.observations.reshape(n_steps * n_envs, *buffer.obs_shape)  # type: ignore[union-attr]
         flat_actions = buffer.actions.reshape(n_steps * n_envs, -1)
         cost_adv = self.cost_advantages(flat_obs, flat_actions).reshape(n_steps, n_envs)
-        lam = self.lagrange_multiplier
         buffer.advantages = lagrangian_advantage(buffer.advantages, cost_adv, lam)
 
         super().train()
 
         for key, value in critic_stats.items():
-            self.logger.record(f"csc/cost_critic_{key}", value)
-        self.logger.record("csc/lagrange_multiplier", lam)
-        self.logger.record("csc/cost_advantage_mean", float(cost_adv.mean()))
-        self.logger.record("csc/cost_threshold", self.cost_threshold)
-        if episode_cost is not None:
-            self.logger.record("csc/episode_cost", episode_cost)
-
-    def dump_logs(self, iteration: int = 0) -> None:
-        """SB3's logs plus the safety metrics (SPEC §5) under ``safety/``."""
-        self.safety_metrics.record(self.logger)
-        super().dump_logs(iteration)
+            self.logger.record(f"train/cost_critic_{key}", value)
+        self.logger.record("train/cost_advantage_mean", float(cost_adv.mean()))
+        self.logger.record("train/cost_threshold", self.cost_threshold)
 
     def learn(
         self: SelfCSC,

@@ -193,9 +193,10 @@ class CSCPolicy(ActorCriticPolicy):
     def _build(self, lr_schedule: Schedule) -> None:
         super()._build(lr_schedule)  # actor, value head and ``self.optimizer`` (without the cost critic)
         assert isinstance(self.action_space, spaces.Box)
-        # copies (th.tensor, not th.as_tensor): set_parameters/load must not write into the env's action space
-        self.register_buffer("action_low", th.tensor(self.action_space.low, dtype=th.float32))
-        self.register_buffer("action_high", th.tensor(self.action_space.high, dtype=th.float32))
+        # copies (th.tensor, not th.as_tensor): set_parameters/load must not write into the env's action space;
+        # flat, as the Gaussian's actions are (``(..., action_dim)`` also for a Box of shape (2, 2))
+        self.register_buffer("action_low", th.tensor(self.action_space.low.reshape(-1), dtype=th.float32))
+        self.register_buffer("action_high", th.tensor(self.action_space.high.reshape(-1), dtype=th.float32))
         self.cost_features_extractor = self.make_features_extractor()
         action_dim = int(np.prod(self.action_space.shape))
         self.cost_critic = CostCritic(
@@ -239,7 +240,10 @@ class CSCPolicy(ActorCriticPolicy):
         return gaussian
 
     def normalize_actions(self, actions: th.Tensor) -> th.Tensor:
-        """Clip raw policy actions to the Box and rescale them to [-1, 1], the cost critic's action input."""
+        """Clip raw policy actions to the Box and rescale them to [-1, 1], the cost critic's action input.
+
+        :param actions: ``(..., action_dim)`` flat actions, as the policy's distribution samples them.
+        """
         low, high = cast(th.Tensor, self.action_low), cast(th.Tensor, self.action_high)
         actions = actions.to(low.dtype)  # the critic is float32, whatever the action space's dtype (e.g. float64)
         return 2.0 * (th.clamp(actions, low, high) - low) / (high - low) - 1.0

@@ -3,7 +3,7 @@
 Chow et al. 2017 / Tessler et al. 2019 / Ray et al. 2019: the constrained problem ``max J_R(π)  s.t.  J_C(π) <= d``
 is solved on its Lagrangian ``L(π, λ) = J_R(π) - λ·(J_C(π) - d)``, ``λ >= 0``: a PPO step on ``π`` with the advantage
 ``(A_R - λ·A_C) / (1 + λ)`` (the ``1 + λ`` keeps its scale as ``λ`` grows), and a projected (dual) gradient step on
-``λ``: ``λ ← max(0, λ + η_λ·(J_C - d))``. The paper under reproduction uses it as the "PDO" baseline (its [25]).
+``λ``: ``λ ← max(0, λ + η_λ·(J_C - d))``. The paper uses it as its "PDO" baseline ([25], Section V-A.3).
 """
 
 from __future__ import annotations
@@ -16,26 +16,24 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
-from sppo_sb3.common.on_policy import (
-    CostActorCriticPolicy,
-    CostRolloutBuffer,
-    SafeOnPolicyMixin,
-    lagrange_update,
-    lagrangian_advantage,
-)
+from sppo_sb3.common.cost_buffer import CostRolloutBuffer
+from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
+from sppo_sb3.common.lagrange import LagrangianMixin, lagrangian_advantage
+from sppo_sb3.common.on_policy import SafeOnPolicyMixin
 from sppo_sb3.pdo.policies import MlpPolicy
 
 SelfPDO = TypeVar("SelfPDO", bound="PDO")
 
 
-class PDO(SafeOnPolicyMixin, PPO):
+class PDO(LagrangianMixin, SafeOnPolicyMixin, PPO):
     """PPO-Lagrangian (primal-dual optimisation) with a learned cost critic and cost GAE.
 
     Costs are read from ``info["cost"]``; the mean episode cost ``J_C`` of each rollout drives the multiplier
-    (:func:`lagrange_update`), then PPO optimises the clipped surrogate of ``(A_R - λ·A_C) / (1 + λ)`` and the cost
-    critic ``V_C`` is regressed on the cost TD(λ) returns. Every other argument is SB3 ``PPO``'s.
+    (:class:`~sppo_sb3.common.lagrange.LagrangianMixin`), then PPO optimises the clipped surrogate of
+    ``(A_R - λ·A_C) / (1 + λ)`` and the cost critic ``V_C`` is regressed on the cost TD(λ) returns. Every other
+    argument is SB3 ``PPO``'s.
 
-    :param policy: the policy model ("MlpPolicy": :class:`~sppo_sb3.common.on_policy.CostActorCriticPolicy`).
+    :param policy: the policy model ("MlpPolicy": :class:`~sppo_sb3.common.cost_policy.CostActorCriticPolicy`).
     :param env: the environment (must report ``info["cost"]``), or its registered id.
     :param learning_rate: learning rate of the actor and both critics.
     :param n_steps: steps per env per rollout.
@@ -51,13 +49,14 @@ class PDO(SafeOnPolicyMixin, PPO):
     :param max_grad_norm: gradient clipping norm.
     :param use_sde: generalised state-dependent exploration.
     :param sde_sample_freq: gSDE noise resampling period.
-    :param rollout_buffer_class: ``None`` or a subclass of :class:`~sppo_sb3.common.on_policy.CostRolloutBuffer`.
+    :param rollout_buffer_class: ``None`` or a subclass of :class:`~sppo_sb3.common.cost_buffer.CostRolloutBuffer`.
     :param rollout_buffer_kwargs: kwargs of the rollout buffer.
     :param target_kl: PPO's early-stopping KL.
     :param cost_limit: the limit ``d`` on the mean episode cost ``J_C`` (on tasks that terminate on a violation, the
         fraction of episodes allowed to end in one).
-    :param lagrange_lr: dual step size ``η_λ``.
-    :param initial_lambda: initial multiplier ``λ_0 >= 0``.
+    :param lagrange_lr: dual step size ``η_λ >= 0``.
+    :param lagrange_init: initial multiplier ``λ_0 >= 0``.
+    :param initial_lambda: deprecated name of ``lagrange_init`` (a ``DeprecationWarning``; removed in the next release).
     :param stats_window_size: episodes averaged in the rollout logs.
     :param tensorboard_log: TensorBoard log folder (``None``: none).
     :param policy_kwargs: policy kwargs (e.g. ``net_arch``, ``cost_net_arch``).
@@ -94,7 +93,8 @@ class PDO(SafeOnPolicyMixin, PPO):
         target_kl: float | None = None,
         cost_limit: float = 0.05,
         lagrange_lr: float = 0.05,
-        initial_lambda: float = 0.0,
+        lagrange_init: float = 0.0,
+        initial_lambda: float | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -103,10 +103,7 @@ class PDO(SafeOnPolicyMixin, PPO):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        if initial_lambda < 0:
-            raise ValueError(f"initial_lambda must be >= 0 (it is a Lagrange multiplier), got {initial_lambda}.")
-        if lagrange_lr <= 0:
-            raise ValueError(f"lagrange_lr must be > 0, got {lagrange_lr}.")
+        self._init_lagrange(cost_limit, lagrange_init, lagrange_lr, initial_lambda)
         super().__init__(
             policy,
             env,
@@ -135,20 +132,9 @@ class PDO(SafeOnPolicyMixin, PPO):
             device=device,
             _init_setup_model=False,
         )
-        self.cost_limit = cost_limit
-        self.lagrange_lr = lagrange_lr
-        self.lagrange_multiplier = float(initial_lambda)
         self._init_safety()
         if _init_setup_model:
             self._setup_model()
-
-    def update_lagrange_multiplier(self) -> float:
-        """One dual step (:func:`lagrange_update`) with the mean episode cost measured over the latest rollout."""
-        episode_cost = self.cost_tracker.estimate()
-        self.lagrange_multiplier = lagrange_update(self.lagrange_multiplier, episode_cost, self.cost_limit, self.lagrange_lr)
-        self.logger.record("train/lagrange_multiplier", self.lagrange_multiplier)
-        self.logger.record("train/ep_cost_estimate", episode_cost)
-        return self.lagrange_multiplier
 
     def train(self) -> None:
         """Dual step on ``λ``, PPO step on ``(A_R - λ·A_C) / (1 + λ)``, then the cost critic's regression."""
@@ -157,7 +143,7 @@ class PDO(SafeOnPolicyMixin, PPO):
         assert not buf.generator_ready, "the advantages must be combined before the buffer is flattened"
         buf.advantages = lagrangian_advantage(buf.advantages, buf.cost_advantages, lam)
         super().train()
-        for key, value in self._fit_critics(self.n_epochs, self.batch_size, reward_critic=False).items():
+        for key, value in fit_critics(self.policy, buf, self.n_epochs, self.batch_size, reward_critic=False).items():
             self.logger.record(f"train/{key}", value)
 
     def learn(

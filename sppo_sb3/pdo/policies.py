@@ -1,6 +1,6 @@
 """Policies of PDO: SB3's actor-critic with an extra cost value head."""
 
-from sppo_sb3.common.on_policy import CostActorCriticPolicy
+from sppo_sb3.common.cost_policy import CostActorCriticPolicy
 
 MlpPolicy = CostActorCriticPolicy
 

@@ -21,7 +21,8 @@ from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 
-from sppo_sb3.common.on_policy import CostRolloutBuffer, SafeOnPolicyMixin
+from sppo_sb3.common.cost_buffer import CostRolloutBuffer
+from sppo_sb3.common.on_policy import SafeOnPolicyMixin
 from sppo_sb3.common.safety import INTERVENED_KEY
 from sppo_sb3.shield import ShieldingRule, ShieldWrapper, resolve_shielding_rule
 from sppo_sb3.shield.persistence import ShieldedLoadMixin
@@ -92,7 +93,7 @@ class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
     :param max_grad_norm: gradient clipping norm.
     :param use_sde: generalised state-dependent exploration.
     :param sde_sample_freq: gSDE noise resampling period.
-    :param rollout_buffer_class: ``None`` or a subclass of :class:`~sppo_sb3.common.on_policy.CostRolloutBuffer`.
+    :param rollout_buffer_class: ``None`` or a subclass of :class:`~sppo_sb3.common.cost_buffer.CostRolloutBuffer`.
     :param rollout_buffer_kwargs: kwargs of the rollout buffer.
     :param target_kl: PPO's early-stopping KL.
     :param stats_window_size: episodes averaged in the rollout logs.

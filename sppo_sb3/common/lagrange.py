@@ -1,0 +1,99 @@
+"""The Lagrange multiplier of the primal-dual baselines (PDO and CSC), defined once.
+
+Both solve the constrained problem of the paper's Section II-B (the CMDP ``max_π J_R(π)  s.t.  J_C(π) <= d``) on its
+Lagrangian ``L(π, λ) = J_R(π) - λ·(J_C(π) - d)``, ``λ >= 0``: a primal (policy) step on the advantage
+``(A_R - λ·A_C) / (1 + λ)`` and a projected dual (gradient) step on ``λ`` driven by the measured episode cost ``J_C``
+of :class:`~sppo_sb3.common.cost_tracker.EpisodeCostTracker`. The paper's baselines PDO [25] and CSC [28]
+(Section V-A.3) are this scheme with two different cost advantages ``A_C``.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Any
+
+import numpy as np
+
+from sppo_sb3.common.cost_tracker import EPISODE_COST_KEY, EpisodeCostTracker
+
+#: where every primal-dual algorithm logs its multiplier (beside the episode cost that moved it, ``EPISODE_COST_KEY``)
+LAGRANGE_MULTIPLIER_KEY = "train/lagrange_multiplier"
+
+
+def lagrange_update(lagrange_multiplier: float, episode_cost: float, cost_limit: float, lagrange_lr: float) -> float:
+    """Projected dual ascent on the Lagrange multiplier: ``λ ← max(0, λ + η_λ·(J_C - d))``.
+
+    ``∂L/∂λ = -(J_C(π) - d)`` for ``L(π, λ) = J_R(π) - λ·(J_C(π) - d)``: the dual problem ``min_λ≥0 max_π L`` moves ``λ``
+    up while the measured cost exceeds the limit and down (to 0 at most) while it is below.
+
+    :param lagrange_multiplier: current ``λ >= 0``.
+    :param episode_cost: measured mean episode cost ``J_C``.
+    :param cost_limit: the limit ``d``.
+    :param lagrange_lr: dual step size ``η_λ >= 0``.
+    :return: the new ``λ``.
+    """
+    return max(0.0, lagrange_multiplier + lagrange_lr * (episode_cost - cost_limit))
+
+
+def lagrangian_advantage(advantages: np.ndarray, cost_advantages: np.ndarray, lagrange_multiplier: float) -> np.ndarray:
+    """The primal step's advantage ``(A_R - λ·A_C) / (1 + λ)``; the ``1 + λ`` keeps its scale as ``λ`` grows."""
+    lam = lagrange_multiplier
+    return ((advantages - lam * cost_advantages) / (1.0 + lam)).astype(np.float32)
+
+
+class LagrangianMixin:
+    """The multiplier ``λ`` of a primal-dual algorithm: its arguments, its dual step, its logs.
+
+    Put it before :class:`~sppo_sb3.common.on_policy.SafeOnPolicyMixin` in the bases
+    (``class PDO(LagrangianMixin, SafeOnPolicyMixin, PPO)``), whose ``cost_tracker`` gives the measured episode cost,
+    and call :meth:`_init_lagrange` first thing in ``__init__``. The state is three plain attributes, saved with the
+    model: ``cost_limit`` (``d``), ``lagrange_lr`` (``η_λ``) and ``lagrange_multiplier`` (``λ``).
+    """
+
+    cost_limit: float
+    lagrange_lr: float
+    lagrange_multiplier: float
+    cost_tracker: EpisodeCostTracker
+    logger: Any
+
+    def _init_lagrange(
+        self, cost_limit: float, lagrange_init: float, lagrange_lr: float, initial_lambda: float | None = None
+    ) -> None:
+        """Check and store the arguments of the multiplier.
+
+        :param cost_limit: the limit ``d >= 0`` on the mean episode cost ``J_C``.
+        :param lagrange_init: initial multiplier ``λ_0 >= 0``.
+        :param lagrange_lr: dual step size ``η_λ >= 0`` (0 keeps ``λ`` at ``lagrange_init``).
+        :param initial_lambda: deprecated name of ``lagrange_init`` (PDO's before 0.1.0).
+        :raises ValueError: on a negative argument, or when both names of the initial multiplier are given.
+        """
+        if initial_lambda is not None:
+            if lagrange_init != 0.0:
+                raise ValueError(
+                    f"Got both lagrange_init={lagrange_init} and its deprecated name initial_lambda={initial_lambda}: "
+                    "pass lagrange_init only."
+                )
+            warnings.warn(
+                "initial_lambda is deprecated and will be removed in the next release: use lagrange_init (the same "
+                "initial Lagrange multiplier, named as in CSC).",
+                DeprecationWarning,
+                stacklevel=3,
+            )
+            lagrange_init = initial_lambda
+        for name, value in (("cost_limit", cost_limit), ("lagrange_init", lagrange_init), ("lagrange_lr", lagrange_lr)):
+            if value < 0:
+                raise ValueError(f"{name} must be >= 0 (costs and the Lagrange multiplier are non-negative), got {value}.")
+        self.cost_limit = cost_limit
+        self.lagrange_lr = lagrange_lr
+        self.lagrange_multiplier = float(lagrange_init)
+
+    def update_lagrange_multiplier(self) -> float:
+        """One dual step (:func:`lagrange_update`) on the mean episode cost measured over the latest rollout.
+
+        :return: the new ``λ``.
+        """
+        episode_cost = self.cost_tracker.estimate()
+        self.lagrange_multiplier = lagrange_update(self.lagrange_multiplier, episode_cost, self.cost_limit, self.lagrange_lr)
+        self.logger.record(LAGRANGE_MULTIPLIER_KEY, self.lagrange_multiplier)
+        self.logger.record(EPISODE_COST_KEY, episode_cost)
+        return self.lagrange_multiplier
