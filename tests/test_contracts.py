@@ -441,25 +441,11 @@ BOX_ACTIONS = {
     "Box(3,) float64 asymmetric": spaces.Box(np.array([-0.5, -2.0, 0.0]), np.array([1.5, 2.0, 0.1]), dtype=np.float64),
     "Box(2, 2)": spaces.Box(-2, 2, (2, 2), np.float32),
 }
-KNOWN_FAILURES: dict[tuple[str, str], str] = {
-    ("CSC", "Box(2, 2)"): "CSC's action normalisation broadcasts (B, 4) against the (2, 2) bounds (csc/policies.py)",
-}
 
 
 @pytest.mark.parametrize(
     ("algo", "space_name"),
-    [
-        pytest.param(
-            algo,
-            name,
-            id=f"{algo.name}-{name}",
-            marks=[pytest.mark.xfail(strict=True, reason=KNOWN_FAILURES[algo.name, name])]
-            if (algo.name, name) in KNOWN_FAILURES
-            else [],
-        )
-        for algo in MODEL_LIST
-        for name in BOX_ACTIONS
-    ],
+    [pytest.param(algo, name, id=f"{algo.name}-{name}") for algo in MODEL_LIST for name in BOX_ACTIONS],
 )
 def test_box_action_spaces(algo: Algo, space_name: str) -> None:
     """Any Box works: one entry, float64 with asymmetric bounds, several dimensions (the env checks every action)."""
