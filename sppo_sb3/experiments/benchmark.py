@@ -43,10 +43,18 @@ def parse_args(argv: Sequence[str] | None = None, default_hyperparams_dir: Path 
         metavar="[TASK=]N",
         help="env steps per run: N for every task, TASK=N for one (repeatable; default: the yml's n_timesteps)",
     )
-    parser.add_argument("--hyperparams-dir", type=Path, default=default_hyperparams_dir, help="folder of ALGO.yml files")
+    parser.add_argument(
+        "--hyperparams-dir",
+        type=Path,
+        default=None,
+        help=f"folder of ALGO.yml files (default: {default_hyperparams_dir}; --fig7 dmc: its dmc/ subfolder)",
+    )
     parser.add_argument("--quick", action="store_true", help="tiny preset: 2 seeds, 2048 steps (Half-Cheetah: 256)")
-    fig7 = f"Fig. 7 grid: {' '.join(grid.FIG7_ALGOS)} on {' '.join(grid.FIG7_TASKS)}"
-    parser.add_argument("--fig7", action="store_true", help=fig7)
+    fig7 = (
+        f"Fig. 7 grid: {' '.join(grid.FIG7_ALGOS)} on {' '.join(grid.FIG7_TASKS)};\n"
+        f'--fig7 dmc: on the paper\'s dm_control tasks {" ".join(grid.FIG7_DMC)} (pip install "sppo_sb3[dmc]")'
+    )
+    parser.add_argument("--fig7", nargs="?", const="mujoco", default=None, choices=tuple(grid.FIG7_SETS), help=fig7)
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel local runs (default: cores)")
     parser.add_argument("--ray-address", default=None, help="run as Ray tasks on this cluster (auto, ray://host:port)")
     parser.add_argument("--ray-cpus-per-run", type=float, default=1.0, help="CPUs Ray reserves per run (default: 1)")
@@ -58,7 +66,10 @@ def parse_args(argv: Sequence[str] | None = None, default_hyperparams_dir: Path 
     )
     parser.add_argument("--force", action="store_true", help="rerun finished runs too")
     parser.add_argument("--dry-run", action="store_true", help="print the runs' commands and exit")
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    if args.hyperparams_dir is None:
+        args.hyperparams_dir = default_hyperparams_dir / grid.FIG7_SETS[args.fig7 or "mujoco"][1]
+    return args
 
 
 def grid_axes(args: argparse.Namespace) -> tuple[list[str], list[str], list[int]]:
@@ -68,7 +79,9 @@ def grid_axes(args: argparse.Namespace) -> tuple[list[str], list[str], list[int]
     :raises SystemExit: an option out of range.
     """
     algos = args.algos or list(grid.FIG7_ALGOS if args.fig7 else grid.OUR_ALGOS)
-    tasks = args.tasks or list(grid.FIG7_TASKS if args.fig7 else grid.QUICK_TASKS if args.quick else grid.SAFE_TASKS)
+    tasks = args.tasks or list(
+        grid.FIG7_SETS[args.fig7][0] if args.fig7 else grid.QUICK_TASKS if args.quick else grid.SAFE_TASKS
+    )
     n_seeds = args.seeds if args.seeds is not None else (grid.QUICK_SEEDS if args.quick else grid.DEFAULT_SEEDS)
     if n_seeds < 1 or args.workers < 1 or args.last_n < 1:
         raise SystemExit("--seeds, --workers and --last-n must be at least 1")

@@ -6,6 +6,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from sppo_sb3.algorithms import ALGORITHMS
+from sppo_sb3.envs.dmc import FIG7_DMC_TASKS, dmc_id
 from sppo_sb3.experiments import layout
 from sppo_sb3.experiments.configs import resolve_config
 from sppo_sb3.experiments.runner import RunSpec
@@ -17,6 +18,10 @@ SAFE_TASKS: tuple[str, ...] = ("SafePointCircle-v0", "SafeHalfCheetahHeight-v1")
 #: Fig. 7: SPPO's planning-guided exploration against SB3's DDPG and PPO on gymnasium MuJoCo tasks
 FIG7_ALGOS: tuple[str, ...] = ("sppo", "ddpg", "ppo")
 FIG7_TASKS: tuple[str, ...] = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5")
+#: ``--fig7 dmc``: the paper's own six dm_control tasks (``pip install "sppo_sb3[dmc]"``), configured by ``hyperparams/dmc``
+FIG7_DMC: tuple[str, ...] = tuple(dmc_id(task) for task in FIG7_DMC_TASKS)
+#: the task sets of ``--fig7 [SET]`` and the hyperparameter subfolder each one reads ("": the folder itself)
+FIG7_SETS: dict[str, tuple[tuple[str, ...], str]] = {"mujoco": (FIG7_TASKS, ""), "dmc": (FIG7_DMC, "dmc")}
 #: ``--quick``: a few minutes on a laptop (on-policy algorithms still collect one full rollout of ``n_steps``)
 QUICK_STEPS: dict[str, int] = {"SafePointCircle-v0": 2048, "SafeHalfCheetahHeight-v1": 256}
 QUICK_DEFAULT_STEPS = 2048
