@@ -39,6 +39,7 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "tdmpc-restart": dict(absorbing="restart", termination_model=False),
     "tdmpc-terminate": dict(absorbing="terminate", termination_model=False),
     "head-restart-R10": dict(absorbing="restart", termination_model=True, absorbing_penalty=-10.0),
+    "tdmpc-restart-R10": dict(absorbing="restart", termination_model=False, absorbing_penalty=-10.0),
     "sailr": {},
 }
 T_975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262}

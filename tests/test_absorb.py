@@ -108,9 +108,9 @@ def test_termination_head_learns_the_absorbing_flags() -> None:
 
 def test_termination_model_switch(tmp_path) -> None:
     kwargs = dict(policy_kwargs=dict(latent_dim=4, encoder_dim=8, hidden_dim=8), learning_starts=10, compile=False, seed=0)
-    tdmpc = SPPO("TOLDPolicy", "SafePointCircle-v0", termination_model=False, **kwargs)
+    tdmpc = SPPO("TOLDPolicy", "SafePointCircle-v0", **kwargs)  # the default: TD-MPC's model
     assert tdmpc.policy.model.termination is None
-    model = SPPO("TOLDPolicy", "SafePointCircle-v0", **kwargs)
+    model = SPPO("TOLDPolicy", "SafePointCircle-v0", termination_model=True, **kwargs)
     assert model.policy.model.termination is not None
     model.save(tmp_path / "m.zip")
     assert SPPO.load(tmp_path / "m.zip").policy.model.termination is not None

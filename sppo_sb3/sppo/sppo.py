@@ -84,7 +84,8 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
     :param absorbing_penalty: ``R̃`` of eq. 7; defaults to the rule's ``penalty``.
     :param termination_model: give TOLD a termination head, trained on ``B̃``'s terminal flags (absorbing
         interventions and real terminations, not time-limit truncations), and plan with it: eq. 10 adds no reward and
-        no value after a predicted absorbing step. ``False`` is TD-MPC's model, which plans as if no episode ended.
+        no value after a predicted absorbing step. ``False`` (default) is TD-MPC's model and the paper's, which plans
+        as if no episode ended; ``docs/modules/sppo.md`` (Results) has the benchmark that chose the default.
     :param refine_shield: Alg. 1 line 12, ``G ← UpdateShieldingRule(B)``: fit the rule's ``Q̄`` on the real
         transitions of ``B`` during :meth:`train` (as many minibatches of ``batch_size`` as TOPO updates), with the
         backup's targets on Definition 2's scale (:func:`~sppo_sb3.shield.learned.definition2_step_costs`). Needs a
@@ -140,7 +141,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         shield: ShieldingRule | str | None = "auto",
         absorbing: AbsorbingMode = "restart",
         absorbing_penalty: float | None = None,
-        termination_model: bool = True,
+        termination_model: bool = False,
         refine_shield: bool = False,
         planner_kwargs: dict[str, Any] | None = None,
         topo_kwargs: dict[str, Any] | None = None,
