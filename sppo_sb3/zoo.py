@@ -347,7 +347,8 @@ class SafeExperimentManager(ExperimentManager):
         """Deployment safety (Corollary 1): the learned policy with and without the shield, printed side by side.
 
         Runs :attr:`deployment_episodes` deterministic episodes of each deployment on a fresh env of the task (none when
-        0, or under ``VecNormalize``, whose statistics the raw env lacks).
+        0, or under ``VecNormalize``, whose statistics the raw env lacks). Also logged (TensorBoard) under
+        ``deployment_eval/`` and ``deployment_eval_unshielded/`` at the final step.
         """
         episodes = self.deployment_episodes
         if episodes <= 0 or self.normalize:
@@ -364,6 +365,9 @@ class SafeExperimentManager(ExperimentManager):
         print(f"deployment, {episodes} deterministic episodes each (the learned policy with / without the shield):")
         for name, metrics in results.items():
             print(f"  {name + '/':17s}" + "  ".join(f"{key}={value:.2f}" for key, value in metrics.items()))
+            for key, value in metrics.items():  # TensorBoard: deployment_eval/ and deployment_eval_unshielded/
+                model.logger.record(f"deployment_{name}/{key}", value)
+        model.logger.dump(model.num_timesteps)
         return results
 
 
