@@ -405,7 +405,8 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         if self._train_stats_count:
             means = (self._train_stats / self._train_stats_count).tolist()
             for key, value in zip(TOPO_STATS, means):
-                self.logger.record(f"train/{key}", value)
+                if key != "termination" or self.termination_model:  # no head, no loss to log
+                    self.logger.record(f"train/{key}", value)
             self._train_stats.zero_()
             self._train_stats_count = 0
 
