@@ -393,7 +393,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
             t = self.replay_buffer.sample_cost_transitions(batch_size)
             costs = definition2_step_costs(t.shaped_costs, t.violations, rule.discount)
             done = np.maximum(t.terminations, t.violations > 0)
-            actions = self.policy.unscale_action(t.actions)
+            actions = self._env_actions(t.actions)  # rules flatten whatever the Box shape
             losses.append(rule.update(t.observations, actions, costs, t.next_observations, done, 1, batch_size))
         self.logger.record("train/shield_loss", float(np.mean(losses)))
 
