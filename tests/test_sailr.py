@@ -7,6 +7,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import pytest
+from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
@@ -42,8 +43,9 @@ class RecordExecuted(gym.Wrapper):
 class GrabRollout(BaseCallback):
     """Keeps the infos of every step and the rollout buffer's learning data (before it is flattened)."""
 
-    def __init__(self) -> None:
+    def __init__(self, extra: tuple[str, ...] = ()) -> None:
         super().__init__()
+        self.keys = ("rewards", "masks", "episode_starts", "advantages", "values", *extra)
         self.infos: list[list[dict]] = []
         self.dones: list[np.ndarray] = []
         self.rollouts: list[dict[str, np.ndarray]] = []
@@ -55,9 +57,7 @@ class GrabRollout(BaseCallback):
 
     def _on_rollout_end(self) -> None:
         buf = self.model.rollout_buffer
-        self.rollouts.append(
-            {k: getattr(buf, k).copy() for k in ("rewards", "masks", "episode_starts", "advantages", "values")}
-        )
+        self.rollouts.append({k: getattr(buf, k).copy() for k in self.keys})
 
 
 def test_no_intervened_action_is_ever_executed() -> None:
@@ -80,34 +80,61 @@ def test_no_intervened_action_is_ever_executed() -> None:
     assert model.safety_metrics.interventions == intervened.sum()
 
 
-def test_absorbing_transition_and_post_intervention_mask() -> None:
-    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=1, n_steps=256, batch_size=64, n_epochs=1, policy_kwargs=TINY)
+def test_backup_keeps_control_after_the_first_intervention_of_an_episode() -> None:
+    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=1, **FAST)
     grab = GrabRollout()
     model.learn(1024, callback=grab)
-    penalty = model.shield_rule.penalty
-    assert penalty == -1.0
     intervened = np.array([info[0]["shield_intervened"] for info in grab.infos])
     dones = np.concatenate(grab.dones)
-    rewards = np.concatenate([r["rewards"][:, 0] for r in grab.rollouts])
-    masks = np.concatenate([r["masks"][:, 0] for r in grab.rollouts])
-    starts = np.concatenate([r["episode_starts"][:, 0] for r in grab.rollouts])
-    advantages = np.concatenate([r["advantages"][:, 0] for r in grab.rollouts])
-    values = np.concatenate([r["values"][:, 0] for r in grab.rollouts])
+    episode_ends = np.flatnonzero(dones)
+    checked = 0
+    for start, stop in zip(np.r_[0, episode_ends[:-1] + 1], episode_ends + 1):
+        first = np.flatnonzero(intervened[start:stop])
+        if first.size:
+            assert intervened[start + first[0] : stop].all()  # SAILR's code: ζ runs the rest of the episode
+            checked += 1
+    assert checked > 0, "the test needs interventions to be meaningful"
+
+
+def test_absorbing_transition_and_post_intervention_mask() -> None:
+    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=1, n_steps=256, batch_size=64, n_epochs=1, policy_kwargs=TINY)
+    grab = GrabRollout(extra=("costs", "cost_advantages", "cost_values"))
+    model.learn(1024, callback=grab)
+    absorbing_cost = 1.0 / (1.0 - model.gamma)
+    assert model.absorbing_cost == pytest.approx(absorbing_cost)
+    intervened = np.array([info[0]["shield_intervened"] for info in grab.infos])
+    dones = np.concatenate(grab.dones)
+    data = {k: np.concatenate([r[k][:, 0] for r in grab.rollouts]) for k in grab.rollouts[0]}
+    rewards, costs, masks, starts = data["rewards"], data["costs"], data["masks"], data["episode_starts"]
     # expected learning data, step by step: first intervention → absorbing, then masked until the episode ends
     post, first_seen = False, 0
     for t in range(len(intervened)):
         assert masks[t] == (0.0 if post else 1.0), t
         if not post and intervened[t]:
             first_seen += 1
-            assert rewards[t] == penalty
-            # absorbing: A_t = R̃ - V(s_t), no bootstrap from the next state (also at the end of a rollout)
-            assert advantages[t] == pytest.approx(penalty - values[t], abs=1e-5)
+            assert rewards[t] == 0.0 and costs[t] == pytest.approx(absorbing_cost)
+            # absorbing: A = r - V(s_t) and A_C = 1/(1-γ) - V_C(s_t), no bootstrap (also at the end of a rollout)
+            assert data["advantages"][t] == pytest.approx(-data["values"][t], abs=1e-5)
+            assert data["cost_advantages"][t] == pytest.approx(absorbing_cost - data["cost_values"][t], abs=1e-4)
             if t + 1 < len(starts) and (t + 1) % 256:
                 assert starts[t + 1] == 1.0  # terminal for learning: GAE does not bootstrap through it
             post = not dones[t]
-        elif dones[t]:
-            post = False
+        else:
+            assert post or costs[t] == 0.0  # the env's own costs are not learned from
+            if dones[t]:
+                post = False
     assert first_seen > 0 and (masks == 0).any()
+
+
+def test_policy_follows_the_penalised_advantage(monkeypatch: pytest.MonkeyPatch) -> None:
+    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=2, penalty=2.0, **FAST)
+    seen: list[np.ndarray] = []
+    monkeypatch.setattr(PPO, "train", lambda self: seen.append(self.rollout_buffer.advantages.copy()))
+    grab = GrabRollout(extra=("cost_advantages",))
+    model.learn(FAST["n_steps"], callback=grab)
+    rollout = grab.rollouts[0]
+    expected = (rollout["advantages"] - 2.0 * rollout["cost_advantages"]) / 3.0
+    np.testing.assert_allclose(seen[0], expected, rtol=1e-5, atol=1e-6)
 
 
 def test_sailr_train_skips_fully_masked_rollout() -> None:
@@ -137,9 +164,9 @@ def test_sailr_smoke_save_load_predict(tmp_path) -> None:
 
 def test_sailr_n_envs_and_user_rule() -> None:
     env = make_vec_env("SafePointCircle-v0", n_envs=2, seed=0)
-    rule = PointCircleShieldingRule(penalty=-2.0)
+    rule = PointCircleShieldingRule()
     model = SAILR("MlpPolicy", env, shield=rule, seed=0, **FAST)
-    assert model.shield_rule is rule and model.absorbing_penalty == -2.0
+    assert model.shield_rule is rule
     assert all(env.env_is_wrapped(ShieldWrapper))
     model.learn(256)
     assert model.safety_metrics.steps == 256 and model.safety_metrics.violations == 0
@@ -150,8 +177,8 @@ def test_sailr_n_envs_and_user_rule() -> None:
 def test_sailr_shield_errors() -> None:
     with pytest.raises(ValueError, match="No shielding rule is registered"):
         SAILR("MlpPolicy", "Pendulum-v1", **FAST)
-    with pytest.raises(ValueError, match="penalty"):
-        SAILR("MlpPolicy", "SafePointCircle-v0", penalty=1.0, **FAST)
+    with pytest.raises(ValueError, match="weight κ >= 0 of the intervention cost"):
+        SAILR("MlpPolicy", "SafePointCircle-v0", penalty=-1.0, **FAST)
     env = make_vec_env("SafePointCircle-v0", n_envs=1, vec_env_cls=SubprocVecEnv, vec_env_kwargs=dict(start_method="fork"))
     try:
         with pytest.raises(TypeError, match="wrapper_class"):

@@ -274,6 +274,23 @@ def test_wrapper_info_and_executed_action() -> None:
     assert seen_intervention and seen_free
 
 
+def test_wrapper_takeover_gives_the_backup_the_rest_of_the_episode() -> None:
+    rule = FirstCoordinateRule(eta=0.5)  # intervenes iff a_0 > 0.5; ζ(s) = 0
+    recorder = ActionRecorder(gym.make("SafePointCircle-v0", max_episode_steps=6))
+    env = ShieldWrapper(recorder, rule, on_intervention="takeover")
+    safe, unsafe = np.array([0.3, 0.3], dtype=np.float32), np.array([0.9, 0.0], dtype=np.float32)
+    for _ in range(2):  # the second episode starts with the agent in control again
+        env.reset(seed=0)
+        flags = [env.step(safe)[4][INTERVENED], env.step(unsafe)[4][INTERVENED]]
+        truncated = False
+        while not truncated:
+            _, _, terminated, truncated, info = env.step(safe)
+            assert not terminated
+            flags.append(info[INTERVENED])
+            np.testing.assert_array_equal(recorder.received[-1], 0.0)  # the backup, though the proposal is allowed
+        assert flags == [False, True, True, True, True, True]
+
+
 def test_wrapper_step_before_reset() -> None:
     env = ShieldWrapper(gym.make("SafePointCircle-v0"), PointCircleShieldingRule())
     with pytest.raises(RuntimeError, match="reset"):

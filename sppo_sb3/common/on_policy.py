@@ -165,19 +165,20 @@ class SafeOnPolicyMixin:
         return ActionChoice(actions.cpu().numpy(), values, log_probs)
 
     def _learning_transition(
-        self, rewards: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        self, rewards: np.ndarray, costs: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """How one env step enters the learning data (hook; the default keeps it as it is).
 
         :param rewards: ``(n_envs,)`` rewards returned by the env.
+        :param costs: ``(n_envs,)`` the step's ``info["cost"]``.
         :param dones: ``(n_envs,)`` episode ends.
         :param infos: the step's infos.
-        :return: ``(rewards, absorbed, mask)``: the rewards to learn from; where the learning data ends at this step
-            although the real episode may go on (an absorbing terminal: no bootstrap); where the step is learned
-            from (1) or masked out (0).
+        :return: ``(rewards, costs, absorbed, mask)``: the rewards and costs to learn from; where the learning data
+            ends at this step although the real episode may go on (an absorbing terminal: no bootstrap); where the
+            step is learned from (1) or masked out (0).
         """
         n = len(rewards)
-        return rewards, np.zeros(n, dtype=bool), np.ones(n, dtype=np.float32)
+        return rewards, costs.astype(np.float32), np.zeros(n, dtype=bool), np.ones(n, dtype=np.float32)
 
     def _store_transition(
         self,
@@ -286,8 +287,9 @@ class SafeOnPolicyMixin:
             self._update_info_buffer(infos, dones)  # type: ignore[attr-defined]
             n_steps += 1
 
-            learn_rewards, absorbed, masks = self._learning_transition(np.array(rewards, dtype=np.float32), dones, infos)
-            learn_costs = costs.copy()
+            learn_rewards, learn_costs, absorbed, masks = self._learning_transition(
+                np.array(rewards, dtype=np.float32), costs.copy(), dones, infos
+            )
             self._bootstrap_timeouts(learn_rewards, learn_costs, dones, absorbed, infos)
             self._store_transition(self._last_obs, new_obs, actions, costs, dones, infos)  # type: ignore[arg-type]
             if isinstance(self.action_space, spaces.Discrete):

@@ -1,10 +1,23 @@
 """SAILR: Safe Advantage-based Intervention for Learning policies with Reinforcement (Wagener et al. 2021).
 
-PPO learns in the *absorbing* MDP ``M̃`` induced by an advantage-based shielding rule (the paper's eqs. 5, 7, 12):
-every executed action is shielded (``a_safe = a`` unless ``Ā(s, a) > η``, else the backup action ``ζ(s)``), and
-for learning, the first intervention ``T`` of an episode becomes the absorbing transition ``(s_T, a_T, R̃)`` — the
-proposed action, the penalty ``R̃ <= 0``, no bootstrap — after which the agent sits in ``s†`` with zero reward: the
-rest of that real episode is not learned from (masked out of the advantages and of every loss).
+PPO learns in the *absorbing* MDP ``M̃`` induced by an advantage-based shielding rule (the paper's eqs. 5, 7, 12),
+as SAILR's authors ran it (their public code, ``nolanwagener/safe_rl``, is the reference for the facts):
+
+- every executed action is shielded (``a_safe = a`` unless ``Ā(s, a) > η``, else the backup action ``ζ(s)``); after
+  the first intervention ``T`` of an episode the backup policy keeps control until the episode ends;
+- for learning, step ``T`` is the absorbing transition ``(s_T, a_T)`` — the proposed action — with reward 0 and
+  intervention cost 1, after which the agent sits in ``s†``, which costs 1 at every step: the cost value is
+  bootstrapped at its maximum ``1 / (1 - γ)``. The env's own costs are not learned from (the violations are what the
+  shield prevents), and the steps after ``T`` are masked out of the advantages and of every loss;
+- the policy follows the advantage ``(A_R - κ·A_C) / (1 + κ)`` of a fixed penalty ``κ`` (2 on Point, 30 on
+  Half-Cheetah in the authors' configurations) with a learned cost critic ``V_C`` beside ``V``.
+
+Deviations from the authors' code, all in SB3's PPO rather than in SAILR itself: one Adam optimizer for the actor and
+both critics (theirs: learning rates 3e-4 and 1e-3, 80 critic steps), the critics regressed by MSE on unscaled
+returns (theirs: Huber loss on returns scaled by ``100·(1 - γ)`` and clamped to the value range), a state-independent
+log-std (theirs: predicted by the actor), gradient clipping at ``max_grad_norm``, and the post-intervention steps of
+the backup count towards ``n_steps`` (theirs: an epoch counts only the steps the agent chose), so that every
+algorithm is compared at the same number of env steps.
 """
 
 from __future__ import annotations
@@ -17,20 +30,24 @@ import torch as th
 from stable_baselines3 import PPO
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.env_util import is_wrapped
-from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
+from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer
+from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
+from sppo_sb3.common.lagrange import lagrangian_advantage
 from sppo_sb3.common.on_policy import SafeOnPolicyMixin
 from sppo_sb3.common.safety import INTERVENED_KEY
+from sppo_sb3.sailr.policies import MlpPolicy
 from sppo_sb3.shield import ShieldingRule, ShieldWrapper, resolve_shielding_rule
 from sppo_sb3.shield.persistence import ShieldedLoadMixin
+from sppo_sb3.shield.wrapper import OnIntervention
 
 SelfSAILR = TypeVar("SelfSAILR", bound="SAILR")
 
 
-def shield_vec_env(env: VecEnv, rule: ShieldingRule) -> VecEnv:
+def shield_vec_env(env: VecEnv, rule: ShieldingRule, on_intervention: OnIntervention = "takeover") -> VecEnv:
     """Wrap every env of ``env`` in :class:`~sppo_sb3.shield.ShieldWrapper`, in place; return ``env``.
 
     The shield must see the raw observations and replace the action the env executes, so it sits at the gym
@@ -41,6 +58,8 @@ def shield_vec_env(env: VecEnv, rule: ShieldingRule) -> VecEnv:
 
     :param env: the VecEnv to shield.
     :param rule: the shielding rule.
+    :param on_intervention: the wrapper's mode; SAILR's ``"takeover"``: the backup policy runs the rest of an
+        episode after its first intervention.
     :return: the same VecEnv, shielded.
     :raises TypeError: when ``env`` has unshielded envs in another process.
     """
@@ -53,11 +72,12 @@ def shield_vec_env(env: VecEnv, rule: ShieldingRule) -> VecEnv:
         raise TypeError(
             f"SAILR can only shield the envs of a DummyVecEnv in place, got {type(base).__name__} whose envs are not "
             "wrapped in ShieldWrapper. Build it with make_vec_env(env_id, n_envs, vec_env_cls=SubprocVecEnv, "
-            "wrapper_class=sppo_sb3.shield.ShieldWrapper, wrapper_kwargs=dict(rule=rule)) and pass shield=None."
+            "wrapper_class=sppo_sb3.shield.ShieldWrapper, wrapper_kwargs=dict(rule=rule, on_intervention='takeover')) "
+            "and pass shield=None."
         )
     for idx, gym_env in enumerate(base.envs):
         if not is_wrapped(gym_env, ShieldWrapper):
-            base.envs[idx] = ShieldWrapper(gym_env, rule)
+            base.envs[idx] = ShieldWrapper(gym_env, rule, on_intervention=on_intervention)
     return env
 
 
@@ -66,11 +86,14 @@ class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
 
     The training envs are wrapped in :class:`~sppo_sb3.shield.ShieldWrapper` at the gym level (see
     :func:`shield_vec_env`), so the executed action is always the safe one — also in ``predict`` rollouts that use
-    ``model.get_env()``. For learning, the first intervened step of an episode is stored with the agent's proposed
-    action, reward ``penalty`` and a terminal flag (no bootstrap); the later steps of that episode are masked out
-    of the advantages and losses. Every other argument is SB3 ``PPO``'s.
+    ``model.get_env()`` — and after an episode's first intervention the backup policy runs the rest of it. For
+    learning, the first intervened step is stored with the agent's proposed action, reward 0, the cost of the
+    absorbing state ``s†`` (``1 / (1 - γ)``: 1 per step forever) and a terminal flag; the later steps of the episode are
+    masked out. PPO follows ``(A_R - κ·A_C) / (1 + κ)``. The defaults are the authors' (``n_steps`` 4000, full-batch
+    updates for up to 80 epochs with early stopping at ``1.5·target_kl``, GAE ``λ`` 0.97, entropy bonus 0.001); the
+    module docstring lists what differs from their code.
 
-    :param policy: the policy model ("MlpPolicy": SB3's ``ActorCriticPolicy``).
+    :param policy: the policy model ("MlpPolicy": :class:`~sppo_sb3.common.cost_policy.CostActorCriticPolicy`).
     :param env: the environment (must report ``info["cost"]``), or its registered id.
     :param shield: the shielding rule; ``"auto"``: the rule registered for the env's id
         (:func:`~sppo_sb3.shield.default_shielding_rule`); another string: the rule registered for that env id;
@@ -78,7 +101,8 @@ class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
         ``"auto"`` without a registered rule is an error. The rule in use is ``model.shield_rule``; it is saved with
         the model, and ``SAILR.load`` raises where it cannot be rebuilt: pass it with
         ``custom_objects={"shield_rule": rule}``, or ``custom_objects={"shield": None}`` to load unshielded.
-    :param penalty: reward ``R̃ <= 0`` of the absorbing transition; ``None``: the rule's ``penalty`` (default -1).
+    :param penalty: the fixed weight ``κ >= 0`` of the intervention cost's advantage (the authors use 2 on Point and
+        30 on Half-Cheetah; 0 learns from the reward alone, and the absorbing transition then only ends the return).
     :param learning_rate: learning rate.
     :param n_steps: steps per env per rollout.
     :param batch_size: minibatch size.
@@ -105,33 +129,33 @@ class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
     :param _init_setup_model: build the networks now.
     """
 
-    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": ActorCriticPolicy}
-    uses_cost_critic = False
+    policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"MlpPolicy": MlpPolicy}
+    policy: CostActorCriticPolicy
     rollout_buffer: CostRolloutBuffer
 
     def __init__(
         self,
-        policy: str | type[ActorCriticPolicy],
+        policy: str | type[CostActorCriticPolicy],
         env: GymEnv | str,
         shield: ShieldingRule | str | None = "auto",
-        penalty: float | None = None,
+        penalty: float = 1.0,
         learning_rate: float | Schedule = 3e-4,
-        n_steps: int = 2048,
-        batch_size: int = 64,
-        n_epochs: int = 10,
+        n_steps: int = 4000,
+        batch_size: int = 4000,
+        n_epochs: int = 80,
         gamma: float = 0.99,
-        gae_lambda: float = 0.95,
+        gae_lambda: float = 0.97,
         clip_range: float | Schedule = 0.2,
         clip_range_vf: float | Schedule | None = None,
         normalize_advantage: bool = True,
-        ent_coef: float = 0.0,
+        ent_coef: float = 0.001,
         vf_coef: float = 0.5,
         max_grad_norm: float = 0.5,
         use_sde: bool = False,
         sde_sample_freq: int = -1,
         rollout_buffer_class: type[RolloutBuffer] | None = None,
         rollout_buffer_kwargs: dict[str, Any] | None = None,
-        target_kl: float | None = None,
+        target_kl: float | None = 0.01,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -140,8 +164,12 @@ class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        if penalty is not None and penalty > 0:
-            raise ValueError(f"The absorbing penalty R̃ must be <= 0 (eq. 7), got {penalty}.")
+        if penalty < 0:
+            raise ValueError(
+                f"SAILR's penalty is the weight κ >= 0 of the intervention cost (the authors use 2 on Point, 30 on "
+                f"Half-Cheetah), got {penalty}. It used to be a reward R̃ <= 0 of the absorbing step; that reward is now 0, "
+                "as in SAILR's code: pass a positive weight, e.g. penalty=2.0."
+            )
         self.shield = shield
         self.shield_rule: ShieldingRule | None = shield if isinstance(shield, ShieldingRule) else None
         self.penalty = penalty
@@ -206,11 +234,9 @@ class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
         self._shield_env()
 
     @property
-    def absorbing_penalty(self) -> float:
-        """The reward ``R̃`` of the absorbing transition: ``penalty``, else the rule's, else -1."""
-        if self.penalty is not None:
-            return self.penalty
-        return self.shield_rule.penalty if self.shield_rule is not None else -1.0
+    def absorbing_cost(self) -> float:
+        """Learning cost of the absorbing transition: 1, plus ``γ·V_C(s†)`` bootstrapped at its maximum ``1 / (1 - γ)``."""
+        return 1.0 / (1.0 - self.gamma)
 
     # --- learning in the absorbing MDP --------------------------------------------------------------------------
 
@@ -220,11 +246,12 @@ class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
         self._post_intervention = np.zeros(self.env.num_envs, dtype=bool)
 
     def _learning_transition(
-        self, rewards: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The absorbing MDP (eq. 7): the first intervention of an episode ends the learning data with ``R̃``.
+        self, rewards: np.ndarray, costs: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The absorbing MDP (eq. 7): the first intervention of an episode ends the learning data.
 
-        :return: rewards with ``R̃`` at first interventions; ``absorbed`` where a first intervention happened;
+        :return: rewards, 0 at first interventions; costs, :attr:`absorbing_cost` at first interventions and 0
+            elsewhere (the env's costs are not learned from); ``absorbed`` where a first intervention happened;
             mask 0 on the steps after the first intervention of their episode.
         """
         intervened = np.array([bool(info.get(INTERVENED_KEY, False)) for info in infos])
@@ -232,17 +259,26 @@ class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
             self._post_intervention = np.zeros(len(rewards), dtype=bool)
         mask = (~self._post_intervention).astype(np.float32)
         absorbed = intervened & ~self._post_intervention
-        rewards = np.where(absorbed, np.float32(self.absorbing_penalty), rewards).astype(np.float32)
+        rewards = np.where(absorbed, 0.0, rewards).astype(np.float32)
+        costs = np.where(absorbed, self.absorbing_cost, 0.0).astype(np.float32)
         self._post_intervention = (self._post_intervention | absorbed) & ~np.asarray(dones, dtype=bool)
-        return rewards, absorbed, mask
+        return rewards, costs, absorbed, mask
 
     def train(self) -> None:
-        """PPO's update on the unmasked steps (skipped, with a log entry, when the rollout has none)."""
-        n_learnable = self.rollout_buffer.n_learnable
+        """PPO's update of ``(A_R - κ·A_C) / (1 + κ)`` on the unmasked steps, then the cost critic's regression.
+
+        A rollout without unmasked steps is skipped, with a log entry.
+        """
+        buf = self.rollout_buffer
+        n_learnable = buf.n_learnable
         self.logger.record("train/learnable_fraction", n_learnable / (self.n_steps * self.n_envs))
         if n_learnable == 0:
             return
+        assert not buf.generator_ready, "the advantages must be combined before the buffer is flattened"
+        buf.advantages = lagrangian_advantage(buf.advantages, buf.cost_advantages, self.penalty)
         super().train()
+        for key, value in fit_critics(self.policy, buf, self.n_epochs, self.batch_size, reward_critic=False).items():
+            self.logger.record(f"train/{key}", value)
 
     def learn(
         self: SelfSAILR,

@@ -8,7 +8,7 @@ import gymnasium as gym
 import numpy as np
 
 from sppo_sb3.common.safety import INTERVENED_KEY
-from sppo_sb3.shield.base import ShieldingRule
+from sppo_sb3.shield.base import ShieldDecision, ShieldingRule
 
 PROPOSED_ACTION_KEY = "proposed_action"
 EXECUTED_ACTION_KEY = "executed_action"
@@ -16,7 +16,7 @@ ADVANTAGE_KEY = "shield_advantage"
 ABSORBED_KEY = "shield_absorbed"
 ENV_REWARD_KEY = "env_reward"
 
-OnIntervention = Literal["execute", "absorb"]
+OnIntervention = Literal["execute", "absorb", "takeover"]
 
 
 class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
@@ -32,6 +32,9 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
       ``R̃`` (the rule's ``penalty``), so the learner stores ``(s, proposal, R̃, terminal)`` — the proposal is
       what leads to ``s†`` — and the episode restarts at the next ``reset``. The env's reward of the executed step
       is in ``info["env_reward"]``.
+    - ``"takeover"``: as ``"execute"``, and the backup policy ``ζ`` then keeps control until the episode ends: every
+      later step executes ``ζ(s)`` whatever is proposed (and is reported as an intervention). This is how SAILR's
+      code (Wagener et al. 2021) runs an episode after its first intervention; the learner masks those steps out.
 
     The step's info carries ``info["shield_intervened"]`` (whether the backup replaced the action),
     ``info["proposed_action"]`` (what the agent asked for, clipped to the action space), ``info["executed_action"]``
@@ -41,7 +44,7 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
 
     :param env: the env to protect; its observations are what the rule reads.
     :param rule: the shielding rule.
-    :param on_intervention: ``"execute"`` or ``"absorb"`` (see above).
+    :param on_intervention: ``"execute"``, ``"absorb"`` or ``"takeover"`` (see above).
     :param penalty: ``R̃ <= 0`` of the absorbing step; ``None``: the rule's ``penalty``.
     """
 
@@ -55,8 +58,8 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         super().__init__(env)
         if not isinstance(env.action_space, gym.spaces.Box):
             raise TypeError(f"ShieldWrapper needs a Box action space, got {env.action_space}.")
-        if on_intervention not in ("execute", "absorb"):
-            raise ValueError(f"on_intervention must be 'execute' or 'absorb', got {on_intervention!r}.")
+        if on_intervention not in ("execute", "absorb", "takeover"):
+            raise ValueError(f"on_intervention must be 'execute', 'absorb' or 'takeover', got {on_intervention!r}.")
         if penalty is not None and penalty > 0:
             raise ValueError(f"The absorbing penalty R̃ must be <= 0 (eq. 7), got {penalty}.")
         self.rule = rule
@@ -65,10 +68,12 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         self._box: gym.spaces.Box = env.action_space
         self._obs: np.ndarray | None = None
         self._checked = False
+        self._backup_in_control = False
 
     def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
         obs, info = self.env.reset(**kwargs)
         self._obs = np.asarray(obs)
+        self._backup_in_control = False
         if not self._checked:
             self.rule.check_action_space(self.env.action_space, self._obs[None])
             self._checked = True
@@ -78,10 +83,11 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         if self._obs is None:
             raise RuntimeError("ShieldWrapper.step called before reset().")
         proposed = np.clip(np.asarray(action, dtype=np.float64), self._box.low, self._box.high)
-        decision = self.rule.shield(self._obs[None], proposed[None])
+        decision = self._decide(proposed)
         safe = decision.actions[0].reshape(self._box.shape).astype(self._box.dtype)  # the rule's actions are flat
         obs, reward, terminated, truncated, info = self.env.step(safe)
         intervened = bool(decision.intervened[0])
+        self._backup_in_control = intervened and self.on_intervention == "takeover" and not (terminated or truncated)
         info[INTERVENED_KEY] = intervened
         info[PROPOSED_ACTION_KEY] = proposed
         info[EXECUTED_ACTION_KEY] = safe
@@ -92,3 +98,13 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
             info[ENV_REWARD_KEY] = reward
             return obs, self.penalty, True, False, info
         return obs, reward, terminated, truncated, info
+
+    def _decide(self, proposed: np.ndarray) -> ShieldDecision:
+        """The rule's shield on the proposal; once the backup has taken over (``"takeover"``), the backup action."""
+        assert self._obs is not None
+        obs, proposal = np.asarray(self._obs, dtype=np.float64).reshape(1, -1), proposed.reshape(1, -1)
+        if not self._backup_in_control:
+            return self.rule.shield(obs, proposal)
+        backup = self.rule.checked_backup(obs, proposal.shape[1])
+        takeover = ShieldDecision(actions=backup, intervened=np.ones(1, dtype=bool), advantage=np.full(1, np.nan))
+        return self.rule.close_failures(obs, proposal, takeover)  # a backup action that is not finite: ShieldFailure
