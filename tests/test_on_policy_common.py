@@ -4,6 +4,7 @@ loop every on-policy algorithm runs on (spaces, VecNormalize, SB3's warnings), e
 from __future__ import annotations
 
 import contextlib
+import inspect
 import warnings
 from typing import Any
 
@@ -11,6 +12,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+import yaml
 from gymnasium import spaces
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.env_util import make_vec_env
@@ -19,9 +21,11 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.common.costs import MissingCostError
+from sppo_sb3.common.lagrange import DEFAULT_COST_LIMIT
 from sppo_sb3.common.on_policy import CostActorCriticPolicy, CostRolloutBuffer, EpisodeCostTracker, compute_gae
 from sppo_sb3.cpo import CPO
 from sppo_sb3.csc import CSC
+from sppo_sb3.experiments.configs import REPO_HYPERPARAMS_DIR as HYPERPARAMS_DIR
 from sppo_sb3.pdo import PDO
 from sppo_sb3.sailr import SAILR
 
@@ -237,3 +241,11 @@ def test_pdo_and_csc_share_one_lagrange_multiplier(algo: type, tmp_path) -> None
     model.logger.dump(0)
     header = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
     assert {"train/lagrange_multiplier", "train/ep_cost_estimate"} <= set(header)
+
+
+@pytest.mark.parametrize("algo", [PDO, CPO, CSC])
+def test_constrained_baselines_share_one_cost_limit(algo: type) -> None:
+    assert inspect.signature(algo).parameters["cost_limit"].default == DEFAULT_COST_LIMIT
+    with open(HYPERPARAMS_DIR / f"{algo.__name__.lower()}.yml") as file:
+        entries = yaml.safe_load(file)
+    assert {task: entry["cost_limit"] for task, entry in entries.items()} == dict.fromkeys(entries, DEFAULT_COST_LIMIT)

@@ -16,6 +16,12 @@ import numpy as np
 
 from sppo_sb3.common.cost_tracker import EPISODE_COST_KEY, EpisodeCostTracker
 
+#: the cost limit ``d`` shared by the constrained baselines PDO, CPO and CSC: on the paper's tasks an episode ends at
+#: its first violation, so ``J_C`` is the probability that an episode violates, and ``d = 0.01`` allows one episode
+#: in a hundred. It is the limit SAILR's authors gave their PDO and CSC on these two tasks (the SPPO paper states
+#: none), and the closest a CMDP comes to the "no violation" that the shielded methods are held to.
+DEFAULT_COST_LIMIT = 0.01
+
 #: where every primal-dual algorithm logs its multiplier (beside the episode cost that moved it, ``EPISODE_COST_KEY``)
 LAGRANGE_MULTIPLIER_KEY = "train/lagrange_multiplier"
 

@@ -35,6 +35,7 @@ from stable_baselines3.common.utils import explained_variance
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer
 from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
 from sppo_sb3.common.cost_tracker import EPISODE_COST_KEY
+from sppo_sb3.common.lagrange import DEFAULT_COST_LIMIT
 from sppo_sb3.common.on_policy import SafeOnPolicyMixin
 from sppo_sb3.cpo.policies import MlpPolicy
 
@@ -217,7 +218,7 @@ class CPO(SafeOnPolicyMixin, TRPO):
         normalize_advantage: bool = True,
         target_kl: float = 0.01,
         sub_sampling_factor: int = 1,
-        cost_limit: float = 0.05,
+        cost_limit: float = DEFAULT_COST_LIMIT,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,

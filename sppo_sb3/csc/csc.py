@@ -38,7 +38,7 @@ from stable_baselines3.common.utils import obs_as_tensor, polyak_update
 from stable_baselines3.common.vec_env import VecEnv
 from torch.nn import functional as F
 
-from sppo_sb3.common.lagrange import LagrangianMixin, lagrangian_advantage
+from sppo_sb3.common.lagrange import DEFAULT_COST_LIMIT, LagrangianMixin, lagrangian_advantage
 from sppo_sb3.common.on_policy import ActionChoice, SafeOnPolicyMixin
 from sppo_sb3.csc.policies import CSCPolicy
 
@@ -115,7 +115,7 @@ class CSC(LagrangianMixin, SafeOnPolicyMixin, PPO):
         vf_coef: float = 0.5,
         max_grad_norm: float = 0.5,
         target_kl: float | None = None,
-        cost_limit: float = 0.1,
+        cost_limit: float = DEFAULT_COST_LIMIT,
         cost_gamma: float | None = None,
         cost_threshold: float | None = 0.1,
         n_action_samples: int = 100,

@@ -18,7 +18,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer
 from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
-from sppo_sb3.common.lagrange import LagrangianMixin, lagrangian_advantage
+from sppo_sb3.common.lagrange import DEFAULT_COST_LIMIT, LagrangianMixin, lagrangian_advantage
 from sppo_sb3.common.on_policy import SafeOnPolicyMixin
 from sppo_sb3.pdo.policies import MlpPolicy
 
@@ -91,7 +91,7 @@ class PDO(LagrangianMixin, SafeOnPolicyMixin, PPO):
         rollout_buffer_class: type[RolloutBuffer] | None = None,
         rollout_buffer_kwargs: dict[str, Any] | None = None,
         target_kl: float | None = None,
-        cost_limit: float = 0.05,
+        cost_limit: float = DEFAULT_COST_LIMIT,
         lagrange_lr: float = 0.05,
         lagrange_init: float = 0.0,
         initial_lambda: float | None = None,
