@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from tiny_hyperparams import TINY_DDPG, TINY_PPO, TINY_SPPO
 
 from sppo_sb3 import zoo
 from sppo_sb3.envs.dmc import ACTION_REPEAT, FIG7_DMC_TASKS, INSTALL_HINT, ActionRepeat, action_repeat, dmc_id
@@ -31,15 +32,9 @@ CARTPOLE_EPISODE = 1000 // CARTPOLE_REPEAT
 
 # tiny networks and budgets, as rl-zoo3 --hyperparams overrides (plumbing, not learning)
 TINY: dict[str, list[str]] = {
-    "sppo": [
-        "learning_starts:60",
-        "batch_size:16",
-        "horizon:2",
-        "policy_kwargs:dict(latent_dim=8, encoder_dim=16, hidden_dim=16)",
-        "planner_kwargs:dict(num_samples=8, num_elites=2, iterations=1, horizon_warmup=10, min_std_decay=10)",
-    ],
-    "ddpg": ["learning_starts:60", "batch_size:16", "policy_kwargs:dict(net_arch=[8])"],
-    "ppo": ["n_steps:64", "batch_size:32", "n_epochs:1", "policy_kwargs:dict(net_arch=[8])"],
+    "sppo": TINY_SPPO,
+    "ddpg": TINY_DDPG,
+    "ppo": TINY_PPO,
 }
 
 

@@ -20,6 +20,7 @@ import optuna
 import pandas as pd
 import pytest
 import yaml
+from tiny_hyperparams import TINY_SPPO
 
 from sppo_sb3 import zoo
 from sppo_sb3.algorithms import ALGORITHMS, DISPLAY_ORDER, ZOO_BASELINES, Algorithm
@@ -32,13 +33,7 @@ SHORT_EPISODES = ["--env-kwargs", "max_episode_steps:50"]
 
 # tiny networks and budgets per algorithm, as rl-zoo3 --hyperparams overrides
 TINY: dict[str, list[str]] = {
-    "sppo": [
-        "learning_starts:60",
-        "batch_size:16",
-        "horizon:2",
-        "policy_kwargs:dict(latent_dim=8, encoder_dim=16, hidden_dim=16)",
-        "planner_kwargs:dict(num_samples=8, num_elites=2, iterations=1, horizon_warmup=10, min_std_decay=10)",
-    ],
+    "sppo": TINY_SPPO,
     "pdo": ["n_steps:64", "batch_size:32", "n_epochs:1", "policy_kwargs:dict(net_arch=[8], cost_net_arch=[8])"],
     "sailr": ["n_steps:64", "batch_size:32", "n_epochs:1", "policy_kwargs:dict(net_arch=[8])"],
     "cpo": [
