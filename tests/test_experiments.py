@@ -143,6 +143,12 @@ def test_plotter_writes_figures_and_tables(grid_out: Path, tmp_path: Path) -> No
     aggregate = pd.read_csv(out / "aggregate.csv")
     assert set(aggregate["algo"]) == set(ALGOS) and (aggregate["seeds"] == len(SEEDS)).all()
     assert set(aggregate) >= {"cumulative_violations_mean", "safety_rate_mean", "safety_rate_std", "return_last_n_mean"}
+    # 2 seeds each: a bootstrap interval of the mean, which the tables print, but too few seeds for an IQM
+    assert (aggregate["safety_rate_ci_low"] <= aggregate["safety_rate_mean"]).all()
+    assert (aggregate["safety_rate_mean"] <= aggregate["safety_rate_ci_high"]).all()
+    assert aggregate["safety_rate_iqm"].isna().all() and "IQM:" not in tables
+    pdo = aggregate.set_index("algo").loc["pdo"]
+    assert f"| {pdo['safety_rate_mean']:.2f} [{pdo['safety_rate_ci_low']:.2f}, {pdo['safety_rate_ci_high']:.2f}] |" in tables
     # Fig. 7 mode on the same folder: return curves and a returns table
     assert plot.main([str(grid_out), "--out", str(out), "--fig7"]) == 0
     assert (out / "fig7_curves.png").is_file() and "| Return (last episodes) |" in (out / "fig7_table.md").read_text()
