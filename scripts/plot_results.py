@@ -12,8 +12,8 @@ A thin command line over :mod:`sppo_sb3.experiments` (see ``--help``). Writes to
 - ``aggregate.csv``: the per-(task, algorithm) aggregates behind them.
 
 ``--fig7`` instead writes ``fig7_curves.png`` (return curves of SPPO, DDPG and PPO per task, as Fig. 7) and
-``fig7_table.md`` (final returns). The intervals are rliable's stratified bootstrap. Needs matplotlib and rliable
-(``pip install "sppo_sb3[plots]"``).
+``fig7_table.md`` (final returns). The intervals are percentile bootstraps over seeds (scipy). Needs matplotlib and
+scipy (``pip install "sppo_sb3[plots]"``).
 
 Example::
 

@@ -1,4 +1,4 @@
-"""Confidence intervals over seeds (rliable's stratified bootstrap) in the aggregates, curves, tables and figures."""
+"""Confidence intervals over seeds (percentile bootstrap over seeds) in the aggregates, curves, tables and figures."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
 """The comparison's figures (Figs. 5–7 of the paper): curves over env steps and violation bars, one panel per task.
 
-Means over seeds are drawn with their 95% stratified-bootstrap confidence intervals
+Means over seeds are drawn with their 95% bootstrap confidence intervals
 (:func:`~sppo_sb3.experiments.stats.curve_band`, :func:`~sppo_sb3.experiments.stats.seed_intervals`). Needs matplotlib
-and rliable (``pip install "sppo_sb3[plots]"``).
+and scipy (``pip install "sppo_sb3[plots]"``).
 """
 
 from __future__ import annotations

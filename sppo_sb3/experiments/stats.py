@@ -1,16 +1,18 @@
 """Statistics over a grid's runs: curves on a common step grid, and per-(task, algorithm) aggregates over seeds.
 
-Aggregates are the mean ± std over seeds and, for the paper's figures, the mean with its 95% stratified-bootstrap
-confidence interval (and the interquartile mean, IQM, from :data:`IQM_MIN_SEEDS` seeds), computed with rliable
-(``pip install "sppo_sb3[plots]"``) as Agarwal et al. (2021) recommend for few-seed RL results.
+Aggregates are the mean ± std over seeds and, for the paper's figures, the mean with its 95% bootstrap confidence
+interval (and the interquartile mean, IQM, from :data:`IQM_MIN_SEEDS` seeds) as Agarwal et al. (2021) recommend for
+few-seed RL results: the percentile bootstrap over seeds of ``scipy.stats.bootstrap`` (``pip install
+"sppo_sb3[plots]"``). Every interval is of one task, where Agarwal et al.'s stratified bootstrap (runs resampled
+within each task) is this bootstrap over seeds. rliable, their library, is not used: it pins ``arch<8``, which does
+not import with pandas 3.
 """
 
 from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -88,51 +90,46 @@ def order_of_magnitude(violations: float) -> str:
     return "10 ↑" if k == 1 else f"10^{k} ↑"
 
 
-def _rliable() -> tuple[Any, Any]:
-    """rliable's ``library`` and ``metrics`` modules (an optional extra)."""
+def _scipy_stats() -> Any:
+    """``scipy.stats`` (an optional extra)."""
     try:
-        from rliable import library, metrics
+        from scipy import stats
     except ImportError as exc:
-        raise SystemExit('confidence intervals need rliable: pip install "sppo_sb3[plots]"') from exc
-    return library, metrics
+        raise SystemExit('confidence intervals need scipy: pip install "sppo_sb3[plots]"') from exc
+    return stats
 
 
-@contextmanager
-def _seeded_global_rng(seed: int) -> Iterator[None]:
-    """Seed numpy's global RNG for the block and restore its state after it.
-
-    rliable's ``StratifiedBootstrap`` draws its resamples from ``np.random`` whatever ``random_state`` it is given (and
-    arch deprecates ``random_state``), so this is what makes its intervals reproducible.
-    """
-    state = np.random.get_state()
-    np.random.seed(seed)
-    try:
-        yield
-    finally:
-        np.random.set_state(state)
+def interquartile_mean(values: np.ndarray, axis: int = 0) -> Any:
+    """The IQM: the mean of the middle 50% of ``values`` along ``axis`` (a 25% trimmed mean)."""
+    return _scipy_stats().trim_mean(values, 0.25, axis=axis)
 
 
 def bootstrap_interval(
-    scores: np.ndarray, metric: Callable[[np.ndarray], Any], reps: int = BOOTSTRAP_REPS
+    scores: np.ndarray, statistic: Callable[..., Any] = np.mean, reps: int = BOOTSTRAP_REPS
 ) -> tuple[Any, Any, Any]:
-    """``metric`` of ``scores`` and its :data:`CONFIDENCE` stratified-bootstrap interval (rliable, percentile method).
+    """``statistic`` of ``scores`` over its seeds (axis 0) and its :data:`CONFIDENCE` percentile-bootstrap interval.
 
-    rliable resamples the runs (axis 0) independently for every other index of ``scores``: with scores shaped
-    ``(runs, 1, points)`` each point gets its own interval, as in rliable's sample-efficiency curves.
+    The seeds are resampled with replacement, :data:`BOOTSTRAP_REPS` times from a generator seeded with
+    :data:`BOOTSTRAP_SEED`, so the same runs give the same interval. Every other index of ``scores`` gets its own
+    interval, from the same resamples of the seeds (vectorised: one call for all the points of a curve).
 
-    :param scores: ``(runs, tasks)`` or ``(runs, tasks, points)``.
-    :param metric: an rliable aggregate, e.g. ``rliable.metrics.aggregate_mean``.
+    :param scores: ``(seeds,)`` or ``(seeds, points)``.
+    :param statistic: a reduction with an ``axis`` argument (``np.mean``, :func:`interquartile_mean`).
     :param reps: bootstrap resamples.
-    :return: the point estimate, the interval's low and high ends (scalars, or arrays over the points).
+    :return: the estimate, the interval's low and high ends (scalars, or arrays over the points).
     """
-    library, _ = _rliable()
-    with _seeded_global_rng(BOOTSTRAP_SEED):
-        estimates, intervals = library.get_interval_estimates(
-            {"scores": scores}, metric, reps=reps, confidence_interval_size=CONFIDENCE
-        )
-    estimate = estimates["scores"]
-    low, high = np.reshape(intervals["scores"], (2, *np.shape(estimate)))  # arch gives (2, 1) for a scalar metric
-    return estimate, low, high
+    stats = _scipy_stats()
+    result = stats.bootstrap(
+        (scores,),
+        lambda sample, axis: statistic(sample, axis=axis),
+        n_resamples=reps,
+        confidence_level=CONFIDENCE,
+        method="percentile",
+        axis=0,
+        vectorized=True,
+        rng=np.random.default_rng(BOOTSTRAP_SEED),
+    )
+    return statistic(scores, axis=0), result.confidence_interval.low, result.confidence_interval.high
 
 
 def seed_intervals(values: np.ndarray) -> dict[str, float]:
@@ -144,16 +141,15 @@ def seed_intervals(values: np.ndarray) -> dict[str, float]:
     :param values: one value per seed.
     :return: ``ci_low``, ``ci_high``, ``iqm``, ``iqm_ci_low``, ``iqm_ci_high``.
     """
-    _, metrics = _rliable()
     values = np.asarray(values, dtype=float)
-    scores = values[np.isfinite(values)][:, None]  # (seeds, 1 task)
+    scores = values[np.isfinite(values)]
     nan = float("nan")
     out = dict.fromkeys(("ci_low", "ci_high", "iqm", "iqm_ci_low", "iqm_ci_high"), nan)
     if len(scores) >= 2:
-        _, low, high = bootstrap_interval(scores, metrics.aggregate_mean)
+        _, low, high = bootstrap_interval(scores, np.mean)
         out.update(ci_low=float(low), ci_high=float(high))
     if len(scores) >= IQM_MIN_SEEDS:
-        iqm, low, high = bootstrap_interval(scores, metrics.aggregate_iqm)
+        iqm, low, high = bootstrap_interval(scores, interquartile_mean)
         out.update(iqm=float(iqm), iqm_ci_low=float(low), iqm_ci_high=float(high))
     return out
 
@@ -163,7 +159,6 @@ def _pointwise_mean_intervals(values: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
     Columns covered by the same seeds are bootstrapped in one call; a column with fewer than 2 seeds gets NaN.
     """
-    _, metrics = _rliable()
     low = np.full(values.shape[1], np.nan)
     high = np.full(values.shape[1], np.nan)
     covered = ~np.isnan(values)
@@ -171,7 +166,7 @@ def _pointwise_mean_intervals(values: np.ndarray) -> tuple[np.ndarray, np.ndarra
         if seeds.sum() < 2:
             continue
         columns = np.all(covered == seeds[:, None], axis=0)
-        _, low[columns], high[columns] = bootstrap_interval(values[seeds][:, columns][:, None, :], metrics.aggregate_mean)
+        _, low[columns], high[columns] = bootstrap_interval(values[seeds][:, columns], np.mean)
     return low, high
 
 
@@ -182,9 +177,8 @@ def curve_band(curves: Sequence[pd.DataFrame], column: str, points: int = 100, s
     on the range of env steps that all seeds cover (their episodes end at different steps); when the seeds' ranges do
     not overlap, on their union, where a seed outside its range is left out of the mean.
 
-    The interval of each grid point is a stratified bootstrap of the seeds at that point alone (rliable,
-    :data:`BOOTSTRAP_REPS` resamples, all points resampled in one vectorised call: about 0.1 s per curve); with a
-    single seed there is none (NaN).
+    The interval of each grid point is a bootstrap of the seeds at that point (:func:`bootstrap_interval`, all the
+    points of the seeds that cover them in one vectorised call); with a single seed there is none (NaN).
 
     :param curves: the seeds' ``curve.csv`` frames (``timesteps`` and ``column``).
     :param column: e.g. ``return`` or ``cumulative_violations``.

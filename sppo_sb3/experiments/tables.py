@@ -39,8 +39,8 @@ def _throughput(row: pd.Series) -> str:
 
 #: how the tables' ``mean [low, high]`` cells read
 INTERVAL_LEGEND = (
-    f"`mean [low, high]`: mean over seeds and its 95% stratified-bootstrap confidence interval (rliable, "
-    f"{BOOTSTRAP_REPS} resamples); `mean ± std` where there is no interval (one seed). IQM: interquartile mean over "
+    f"`mean [low, high]`: mean over seeds and its 95% percentile-bootstrap confidence interval over seeds "
+    f"({BOOTSTRAP_REPS} resamples); `mean ± std` where there is no interval (one seed). IQM: interquartile mean over "
     f"seeds [95% CI], from {IQM_MIN_SEEDS} seeds."
 )
 
