@@ -12,6 +12,7 @@ Examples::
     python scripts/benchmark.py --tasks SafePointCircle-v0 --seeds 8 --out results/paper   # paper scale, Table I
     python scripts/benchmark.py --fig7 --seeds 3 --steps 100000 --out results/fig7
     python scripts/benchmark.py --ray-address auto --seeds 8 --out /shared/results         # on a Ray cluster
+    python scripts/benchmark.py --plan --out results/quick --workers 64   # paper-scale core-hours, measured there
 """
 
 from __future__ import annotations

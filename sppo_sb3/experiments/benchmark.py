@@ -4,6 +4,8 @@ Runs go to parallel local processes (``--workers``, default: the number of cores
 tasks on an existing cluster. A run with a ``DONE`` marker is skipped (``--force`` reruns it); a run that failed
 leaves ``FAILED`` and is retried by the next invocation. The algorithms are the package's (configured by
 ``--hyperparams-dir``) and any of rl-zoo3's built-in ones (:func:`~sppo_sb3.experiments.configs.resolve_config`).
+``--plan`` prints the paper-scale grid's core-hours from the throughput of the runs in ``--out``
+(:mod:`~sppo_sb3.experiments.plan`).
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sppo_sb3.experiments import grid, layout
+from sppo_sb3.experiments import grid, layout, plan
 from sppo_sb3.experiments.configs import REPO_HYPERPARAMS_DIR
 from sppo_sb3.experiments.runner import RunSpec, dry_run_command, finalize, import_ray, progress_line, run_local, run_ray
 
@@ -66,6 +68,12 @@ def parse_args(argv: Sequence[str] | None = None, default_hyperparams_dir: Path 
     )
     parser.add_argument("--force", action="store_true", help="rerun finished runs too")
     parser.add_argument("--dry-run", action="store_true", help="print the runs' commands and exit")
+    parser.add_argument(
+        "--plan",
+        action="store_true",
+        help="print the paper-scale grid's core-hours, measured on the finished runs in --out,\n"
+        "and its wall clock on --workers cores; then exit",
+    )
     args = parser.parse_args(argv)
     if args.hyperparams_dir is None:
         args.hyperparams_dir = default_hyperparams_dir / grid.FIG7_SETS[args.fig7 or "mujoco"][1]
@@ -130,6 +138,22 @@ def run_grid(todo: Sequence[RunSpec], args: argparse.Namespace) -> list[RunSpec]
     return failed
 
 
+def print_plan(out: Path, workers: int) -> int:
+    """Print the paper-scale plan (:func:`~sppo_sb3.experiments.plan.plan_markdown`); returns the exit status.
+
+    :param out: the benchmark's output folder, whose finished runs measure the throughput.
+    :param workers: cores for the wall clock.
+    """
+    if workers < 1:
+        raise SystemExit("--workers must be at least 1")
+    summaries = plan.load_summaries(out)
+    if summaries.empty:
+        print(f"benchmark --plan: no finished runs under {out} to measure the throughput on", file=sys.stderr)
+        return 1
+    print(plan.plan_markdown(plan.paper_plan(plan.measured_throughput(summaries)), workers), end="")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None, default_hyperparams_dir: Path = REPO_HYPERPARAMS_DIR) -> int:
     """Run the grid; returns the exit status (1 when a run failed).
 
@@ -137,6 +161,8 @@ def main(argv: Sequence[str] | None = None, default_hyperparams_dir: Path = REPO
     :param default_hyperparams_dir: ``--hyperparams-dir`` when not given.
     """
     args = parse_args(argv, default_hyperparams_dir)
+    if args.plan:
+        return print_plan(args.out, args.workers)
     algos, tasks, seeds = grid_axes(args)
     steps_default, steps_per_task = grid_steps(args, tasks)
     if args.ray_address is not None:

@@ -1,6 +1,8 @@
 """The comparison's figures (Figs. 5–7 of the paper): curves over env steps and violation bars, one panel per task.
 
-Needs matplotlib (``pip install "sppo_sb3[plots]"``).
+Means over seeds are drawn with their 95% bootstrap confidence intervals
+(:func:`~sppo_sb3.experiments.stats.curve_band`, :func:`~sppo_sb3.experiments.stats.seed_intervals`). Needs matplotlib
+and scipy (``pip install "sppo_sb3[plots]"``).
 """
 
 from __future__ import annotations
@@ -13,7 +15,10 @@ import numpy as np
 import pandas as pd
 
 from sppo_sb3.experiments.display import algo_color, algo_sort_key, display_name, task_title
-from sppo_sb3.experiments.stats import curve_band
+from sppo_sb3.experiments.stats import curve_band, seed_intervals
+
+#: what the bands and error bars show
+INTERVAL_NOTE = "mean, 95% bootstrap CI"
 
 
 def _pyplot() -> Any:
@@ -37,16 +42,18 @@ def plot_curves(
     smooth: int = 1,
     dpi: int = 100,
 ) -> None:
-    """One panel per task: ``column`` vs env steps, mean ± std over seeds, one line per algorithm.
+    """One panel per task: ``column`` vs env steps, one line per algorithm: the mean over seeds and its 95% CI band.
 
-    :param curves: the runs' curves by ``(task, algo)``.
-    :param tasks: the panels, in order.
-    :param column: the curve column plotted.
-    :param ylabel: its axis label.
-    :param path: the PNG written.
-    :param points: grid size of the mean/std.
-    :param smooth: rolling mean over this many episodes (per seed, before averaging).
-    :param dpi: resolution.
+    An algorithm with a single seed has no band.
+
+        :param curves: the runs' curves by ``(task, algo)``.
+        :param tasks: the panels, in order.
+        :param column: the curve column plotted.
+        :param ylabel: its axis label.
+        :param path: the PNG written.
+        :param points: grid size of the mean and its interval.
+        :param smooth: rolling mean over this many episodes (per seed, before averaging).
+        :param dpi: resolution.
     """
     plt = _pyplot()
     fig, axes = plt.subplots(1, len(tasks), figsize=(5.0 * len(tasks), 3.6), squeeze=False)
@@ -60,26 +67,28 @@ def plot_curves(
             n_seeds = len(curves[(task, algo)])
             label = f"{display_name(algo)} ({n_seeds} seed{'s' if n_seeds != 1 else ''})"
             ax.plot(band["timesteps"], band["mean"], color=color, label=label, lw=1.6)
-            ax.fill_between(band["timesteps"], band["mean"] - band["std"], band["mean"] + band["std"], color=color, alpha=0.2)
+            ax.fill_between(band["timesteps"], band["ci_low"], band["ci_high"], color=color, alpha=0.2, lw=0)
         ax.set_title(task_title(task), fontsize=10)
         ax.set_xlabel("env steps")
         ax.set_ylabel(ylabel)
         ax.ticklabel_format(axis="x", style="sci", scilimits=(0, 3))
         ax.grid(alpha=0.3)
         if algos:
-            ax.legend(fontsize=8)
+            ax.legend(fontsize=8, title=INTERVAL_NOTE, title_fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
 
 
 def plot_violation_bars(summaries: pd.DataFrame, tasks: Sequence[str], path: Path, dpi: int = 100) -> None:
-    """One panel per task: cumulative violations at the end of training per algorithm (bar: mean; line: std; dots: seeds).
+    """One panel per task: cumulative violations at the end of training per algorithm.
 
-    :param summaries: the runs' ``summary.json`` rows.
-    :param tasks: the panels, in order.
-    :param path: the PNG written.
-    :param dpi: resolution.
+    Bar: mean over seeds; line: its 95% bootstrap CI (none with a single seed); dots: the seeds.
+
+        :param summaries: the runs' ``summary.json`` rows.
+        :param tasks: the panels, in order.
+        :param path: the PNG written.
+        :param dpi: resolution.
     """
     plt = _pyplot()
     fig, axes = plt.subplots(1, len(tasks), figsize=(5.0 * len(tasks), 3.6), squeeze=False)
@@ -88,14 +97,17 @@ def plot_violation_bars(summaries: pd.DataFrame, tasks: Sequence[str], path: Pat
         algos = sorted(runs["algo"].unique(), key=algo_sort_key)
         for x, algo in enumerate(algos):
             values = runs.loc[runs["algo"] == algo, "cumulative_violations"].astype(float).to_numpy()
-            mean, std = float(values.mean()), float(values.std()) if values.size > 1 else 0.0
-            ax.bar(x, mean, yerr=std, color=algo_color(algo), alpha=0.75, capsize=4)
+            mean, interval = float(values.mean()), seed_intervals(values)
+            low, high = interval["ci_low"], interval["ci_high"]
+            error = [[mean - low], [high - mean]] if np.isfinite(low) else None
+            ax.bar(x, mean, yerr=error, color=algo_color(algo), alpha=0.75, capsize=4)
             ax.scatter(np.full(values.size, x) + np.linspace(-0.15, 0.15, values.size), values, color="k", s=10, zorder=3)
+            top = max(mean, high) if np.isfinite(high) else mean
             ax.annotate(
-                f"{mean:.3g}", (x, mean + std), ha="center", va="bottom", fontsize=8, xytext=(0, 2), textcoords="offset points"
+                f"{mean:.3g}", (x, top), ha="center", va="bottom", fontsize=8, xytext=(0, 2), textcoords="offset points"
             )
         ax.set_xticks(range(len(algos)), [display_name(a) for a in algos], fontsize=8)
-        ax.set_ylabel("cumulative violations")
+        ax.set_ylabel(f"cumulative violations ({INTERVAL_NOTE})")
         ax.set_title(task_title(task), fontsize=10)
         ax.grid(axis="y", alpha=0.3)
         ax.set_ylim(bottom=0)

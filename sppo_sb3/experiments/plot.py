@@ -32,7 +32,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--algos", nargs="+", default=None, help="algorithms to show (default: all found)")
     parser.add_argument("--fig7", action="store_true", help="Fig. 7 mode: return curves and a returns table only")
     parser.add_argument("--smooth", type=int, default=5, help="rolling mean over this many episodes (default: 5)")
-    parser.add_argument("--points", type=int, default=100, help="env-step grid of the mean ± std (default: 100)")
+    parser.add_argument("--points", type=int, default=100, help="env-step grid of the curves' mean and CI (default: 100)")
     parser.add_argument("--dpi", type=int, default=100, help="PNG resolution (default: 100)")
     return parser.parse_args(argv)
 

@@ -1,7 +1,8 @@
 """What a finished run reports: its learning curve from rl-zoo3's monitor files and its ``summary.json``.
 
 :func:`summarize` is the one place that decides what ``summary.json`` holds. A new figure goes there; to show it as a
-mean ± std over seeds, add its key to :data:`sppo_sb3.experiments.stats.AGGREGATED_KEYS` (``aggregate.csv``).
+mean ± std over seeds, add its key to :data:`sppo_sb3.experiments.stats.AGGREGATED_KEYS` (``aggregate.csv``), and to
+:data:`~sppo_sb3.experiments.stats.INTERVAL_KEYS` for its bootstrap confidence interval and IQM.
 """
 
 from __future__ import annotations

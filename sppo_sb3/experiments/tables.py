@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 
 from sppo_sb3.experiments.display import display_name, task_title
-from sppo_sb3.experiments.stats import order_of_magnitude
+from sppo_sb3.experiments.stats import BOOTSTRAP_REPS, IQM_MIN_SEEDS, order_of_magnitude
 
 #: the paper's Tables I (Point Robot) and II (Half-Cheetah): violations' order of magnitude, safety rate mean, std
 PAPER_TABLES: dict[str, dict[str, tuple[str, float, float]]] = {
@@ -37,24 +37,62 @@ def _throughput(row: pd.Series) -> str:
     return "–"
 
 
-def _pm(mean: float, std: float, digits: int = 2) -> str:
-    return "–" if not np.isfinite(mean) else f"{mean:.{digits}f} ± {std:.{digits}f}"
+#: how the tables' ``mean [low, high]`` cells read
+INTERVAL_LEGEND = (
+    f"`mean [low, high]`: mean over seeds and its 95% percentile-bootstrap confidence interval over seeds "
+    f"({BOOTSTRAP_REPS} resamples); `mean ± std` where there is no interval (one seed). IQM: interquartile mean over "
+    f"seeds [95% CI], from {IQM_MIN_SEEDS} seeds."
+)
 
 
-def _safety_row(row: pd.Series, paper: dict[str, tuple[str, float, float]]) -> str:
+def _with_interval(row: pd.Series, estimate: str, interval: str, digits: int) -> str | None:
+    """``value [low, high]`` from the row's columns ``estimate``, ``interval_low`` and ``interval_high`` (or ``None``)."""
+    value, low, high = (row.get(column, float("nan")) for column in (estimate, f"{interval}_low", f"{interval}_high"))
+    if not (np.isfinite(value) and np.isfinite(low) and np.isfinite(high)):
+        return None
+    return f"{value:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
+
+
+def _estimate(row: pd.Series, key: str, digits: int = 2) -> str:
+    """``mean [low, high]`` of ``key`` over seeds, ``mean ± std`` without an interval, ``–`` without a mean."""
+    cell = _with_interval(row, f"{key}_mean", f"{key}_ci", digits)
+    if cell is not None:
+        return cell
+    mean = row.get(f"{key}_mean", float("nan"))
+    return "–" if not np.isfinite(mean) else f"{mean:.{digits}f} ± {row[f'{key}_std']:.{digits}f}"
+
+
+def _iqm(row: pd.Series, key: str, digits: int = 2) -> str:
+    """``iqm [low, high]`` of ``key`` over seeds, ``–`` with too few seeds."""
+    return _with_interval(row, f"{key}_iqm", f"{key}_iqm_ci", digits) or "–"
+
+
+def _has_iqm(table: pd.DataFrame, key: str) -> bool:
+    """Whether any row of ``table`` has an IQM of ``key`` (the IQM columns are left out otherwise)."""
+    column = f"{key}_iqm"
+    return column in table and bool(np.isfinite(table[column].astype(float)).any())
+
+
+#: the Tables I–II figures with an estimate over seeds: (key, digits, column title)
+SAFETY_ESTIMATES: tuple[tuple[str, int, str], ...] = (
+    ("cumulative_violations", 1, "Cumulative violations"),
+    ("safety_rate", 2, "Safety rate (%)"),
+    ("return_last_n", 2, "Return (last episodes)"),
+)
+
+
+def _safety_row(row: pd.Series, paper: dict[str, tuple[str, float, float]], iqm_keys: list[str]) -> str:
     """One algorithm's line of a Table I–II: ours, then the paper's when the task is one of its tables."""
     algo = str(row["algo"])
     interventions = row.get("cumulative_interventions_mean", float("nan"))
-    cells = [
-        display_name(algo),
-        order_of_magnitude(row["cumulative_violations_mean"]),
-        _pm(row["cumulative_violations_mean"], row["cumulative_violations_std"], 1),
-        _pm(row["safety_rate_mean"], row["safety_rate_std"]),
-        _pm(row["return_last_n_mean"], row["return_last_n_std"]),
+    cells = [display_name(algo), order_of_magnitude(row["cumulative_violations_mean"])]
+    cells += [_estimate(row, key, digits) for key, digits, _ in SAFETY_ESTIMATES]
+    cells += [
         f"{row['episodes_mean']:.0f}",
         "–" if not np.isfinite(interventions) else f"{interventions:.0f}",
         _throughput(row),
     ]
+    cells += [_iqm(row, key, digits) for key, digits, _ in SAFETY_ESTIMATES if key in iqm_keys]
     if paper:
         ref = paper.get(algo)
         cells += [ref[0], f"{ref[1]:.2f} ± {ref[2]:.2f}"] if ref else ["–", "–"]
@@ -62,7 +100,7 @@ def _safety_row(row: pd.Series, paper: dict[str, tuple[str, float, float]]) -> s
 
 
 def safety_tables_markdown(table: pd.DataFrame) -> str:
-    """Tables I–II in markdown: ours (order of magnitude, mean ± std, safety rate) beside the paper's.
+    """Tables I–II in markdown: ours (order of magnitude, mean [95% CI], safety rate, IQM) beside the paper's.
 
     :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
     """
@@ -70,8 +108,9 @@ def safety_tables_markdown(table: pd.DataFrame) -> str:
         "<!-- written by scripts/plot_results.py -->",
         "Violations (10^*): order of magnitude of the mean cumulative constraint violations over training, as in the",
         "paper (`0`: none; `10 ↓`: 1–9; `10^k ↑`: at least 10^k). Safety rate: episodes without a violation / all",
-        "training episodes, mean ± std over seeds. Return: mean training-episode return of each run's last episodes",
-        "(mean ± std over seeds). Env steps/s: training throughput (start-up excluded), mean over seeds.",
+        "training episodes. Return: mean training-episode return of each run's last episodes. Env steps/s: training",
+        "throughput (start-up excluded), mean over seeds. The paper's safety rate is mean ± std.",
+        INTERVAL_LEGEND,
         "",
     ]
     for task, group in table.groupby("task", sort=True):
@@ -80,28 +119,35 @@ def safety_tables_markdown(table: pd.DataFrame) -> str:
         steps = round(float(group["steps_mean"].max())) if "steps_mean" in group else 0
         seeds = ", ".join(sorted({str(s) for s in group["seeds"]}))
         lines += [f"### {title}{task_title(str(task))}", "", f"Ours: {steps} env steps per run, {seeds} seeds.", ""]
-        header = "| Method | Violations (10^*) | Cumulative violations | Safety rate (%) | Return (last episodes) | Episodes |"
-        header += " Shield interventions | Env steps/s |"
-        rule = "|---|---|---|---|---|---|---|---|"
+        iqm_keys = [key for key, _, _ in SAFETY_ESTIMATES if _has_iqm(group, key)]
+        header = "| Method | Violations (10^*) |" + "".join(f" {title} |" for _, _, title in SAFETY_ESTIMATES)
+        header += " Episodes | Shield interventions | Env steps/s |"
+        header += "".join(f" IQM: {title} |" for key, _, title in SAFETY_ESTIMATES if key in iqm_keys)
+        rule = "|---|---|---|---|---|---|---|---|" + "---|" * len(iqm_keys)
         if paper:
             header += " Paper: violations | Paper: safety rate (%) |"
             rule += "---|---|"
         lines += [header, rule]
-        lines += [_safety_row(row, paper) for _, row in group.iterrows()]
+        lines += [_safety_row(row, paper, iqm_keys) for _, row in group.iterrows()]
         lines.append("")
     return "\n".join(lines)
 
 
 def returns_table_markdown(table: pd.DataFrame) -> str:
-    """Final training returns (mean ± std over seeds) per task and algorithm, for the Fig. 7 comparison.
+    """Final training returns (mean [95% CI] over seeds, IQM) per task and algorithm, for the Fig. 7 comparison.
 
     :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
     """
-    lines = ["<!-- written by scripts/plot_results.py --fig7 -->", ""]
-    lines += ["| Task | Method | Seeds | Env steps | Return (last episodes) | Env steps/s |", "|---|---|---|---|---|---|"]
+    iqm = _has_iqm(table, "return_last_n")
+    lines = ["<!-- written by scripts/plot_results.py --fig7 -->", INTERVAL_LEGEND, ""]
+    header = "| Task | Method | Seeds | Env steps | Return (last episodes) | Env steps/s |"
+    if iqm:
+        header += " IQM: Return (last episodes) |"
+    lines += [header, "|---|---|---|---|---|---|" + ("---|" if iqm else "")]
     for _, row in table.iterrows():
-        lines.append(
+        line = (
             f"| {row['task']} | {display_name(str(row['algo']))} | {row['seeds']} | {row['steps_mean']:.0f} | "
-            f"{_pm(row['return_last_n_mean'], row['return_last_n_std'])} | {_throughput(row)} |"
+            f"{_estimate(row, 'return_last_n')} | {_throughput(row)} |"
         )
+        lines.append(line + (f" {_iqm(row, 'return_last_n')} |" if iqm else ""))
     return "\n".join(lines) + "\n"

@@ -1,0 +1,161 @@
+"""The paper-scale grid in core-hours, from the throughput that a benchmark's finished runs measured.
+
+Each run of the paper's grid is costed as its measured fixed cost (start-up, saving, the final deployment
+evaluations) plus the paper's env steps times its measured seconds per env step (the monitor's training clock,
+:func:`~sppo_sb3.experiments.summary.summarize`'s ``train_steps_per_s``). One core per run: the benchmark runs every
+train command with one thread (``--num-threads 1``, ``OMP_NUM_THREADS=1``) on the CPU.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from sppo_sb3.experiments import layout
+from sppo_sb3.experiments.display import algo_sort_key, display_name, task_title
+from sppo_sb3.experiments.grid import OUR_ALGOS
+
+#: the paper's seeds per task: Point Robot (Table I) 8, Half-Cheetah (Table II) 5
+PAPER_SEEDS: dict[str, int] = {"SafePointCircle-v0": 8, "SafeHalfCheetahHeight-v1": 5}
+#: the paper's env steps per run
+PAPER_STEPS = 1_000_000
+#: the paper's algorithms
+PAPER_ALGOS: tuple[str, ...] = OUR_ALGOS
+
+
+def load_summaries(root: Path) -> pd.DataFrame:
+    """The ``summary.json`` rows of the finished runs under a benchmark's output folder.
+
+    :param root: the benchmark's output folder.
+    """
+    return pd.DataFrame([layout.read_summary(run_dir) for run_dir in layout.finished_run_dirs(root)])
+
+
+def run_costs(summary: pd.Series) -> tuple[float, float]:
+    """A run's measured seconds per env step and fixed seconds (its wall clock less its training time).
+
+    Without a training clock (no finished episode), the whole command's rate and no fixed cost.
+
+    :param summary: the run's ``summary.json`` row.
+    :return: seconds per env step, fixed seconds.
+    """
+    steps, wall_s = float(summary["steps"]), float(summary["wall_clock_s"])
+    train_rate = float(summary.get("train_steps_per_s", float("nan")))
+    if not np.isfinite(train_rate) or train_rate <= 0:
+        return wall_s / steps, 0.0
+    return 1.0 / train_rate, max(0.0, wall_s - steps / train_rate)
+
+
+def measured_throughput(summaries: pd.DataFrame) -> pd.DataFrame:
+    """Per ``(task, algo)``: the runs measured and their costs.
+
+    :param summaries: the runs' ``summary.json`` rows (``steps``, ``wall_clock_s``, ``train_steps_per_s``).
+    :return: columns ``task``, ``algo``, ``seeds`` and ``steps`` (the runs', as text), ``s_per_step`` (all the runs'
+        training time over all their steps), ``fixed_s`` (median over the runs).
+    """
+    rows = []
+    for (task, algo), group in summaries.groupby(["task", "algo"], sort=False):
+        costs = np.array([run_costs(summary) for _, summary in group.iterrows()])
+        steps = group["steps"].astype(float).to_numpy()
+        rows.append(
+            {
+                "task": task,
+                "algo": algo,
+                "seeds": ", ".join(str(seed) for seed in sorted(group["seed"])),
+                "steps": _span(steps),
+                "s_per_step": float(np.sum(costs[:, 0] * steps) / np.sum(steps)),
+                "fixed_s": float(np.median(costs[:, 1])),
+            }
+        )
+    return pd.DataFrame(rows, columns=["task", "algo", "seeds", "steps", "s_per_step", "fixed_s"])
+
+
+def _span(steps: np.ndarray) -> str:
+    """``8192`` or ``2048–8192``."""
+    low, high = int(steps.min()), int(steps.max())
+    return str(low) if low == high else f"{low}–{high}"
+
+
+def paper_plan(
+    throughput: pd.DataFrame,
+    seeds_per_task: dict[str, int] | None = None,
+    algos: Sequence[str] = PAPER_ALGOS,
+    steps: int = PAPER_STEPS,
+) -> pd.DataFrame:
+    """The grid's cost per ``(task, algo)``: seconds of one run and core-hours of all its seeds (NaN: not measured).
+
+    :param throughput: :func:`measured_throughput`'s output.
+    :param seeds_per_task: the grid's tasks, in table order, and their seeds (default: :data:`PAPER_SEEDS`).
+    :param algos: the grid's algorithms.
+    :param steps: env steps per run.
+    :return: :func:`measured_throughput`'s columns (NaN where not measured), ``grid_seeds``, ``run_s``, ``core_hours``.
+    """
+    seeds_per_task = PAPER_SEEDS if seeds_per_task is None else seeds_per_task
+    pairs = [(task, algo) for task in seeds_per_task for algo in sorted(algos, key=algo_sort_key)]
+    plan = pd.DataFrame(pairs, columns=["task", "algo"]).merge(throughput, on=["task", "algo"], how="left")
+    plan["grid_seeds"] = [seeds_per_task[task] for task in plan["task"]]
+    plan["run_s"] = plan["fixed_s"] + steps * plan["s_per_step"]
+    plan["core_hours"] = plan["grid_seeds"] * plan["run_s"] / 3600.0
+    return plan
+
+
+def makespan_s(durations: Sequence[float] | np.ndarray, workers: int) -> float:
+    """Wall-clock seconds of runs of these durations on ``workers`` cores, each next-longest run on the first free core.
+
+    :param durations: seconds of each run.
+    :param workers: cores, one run each at a time.
+    """
+    loads = [0.0] * max(1, workers)
+    for duration in sorted(durations, reverse=True):
+        heapq.heappush(loads, heapq.heappop(loads) + duration)
+    return max(loads)
+
+
+def plan_markdown(plan: pd.DataFrame, workers: int, steps: int = PAPER_STEPS) -> str:
+    """The plan as a markdown table with totals, and its wall clock on ``workers`` cores.
+
+    :param plan: :func:`paper_plan`'s output.
+    :param workers: cores available (one run each at a time).
+    :param steps: env steps per run (as in :func:`paper_plan`).
+    """
+    measured = plan[np.isfinite(plan["core_hours"])]
+    seeds = plan.groupby("task", sort=False)["grid_seeds"].first()
+    tasks = "; ".join(f"{task_title(str(task))} {n} seeds" for task, n in seeds.items())
+    lines = [
+        "<!-- written by scripts/benchmark.py --plan -->",
+        f"Grid: {plan['algo'].nunique()} algorithms, {steps:,} env steps per run; {tasks}.",
+        "One CPU core per run (the benchmark trains with one thread). A run costs its measured fixed seconds (start-up,",
+        "saving, final evaluation) plus its env steps times the measured seconds per env step (training clock). The",
+        "measured runs are short: an algorithm whose updates start later (`learning_starts`) or slow down as it trains",
+        "is underestimated.",
+        "",
+        "| Task | Method | Measured on seeds | Steps per measured run | ms / env step | Fixed s / run | Seeds | Core-hours |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for _, row in plan.iterrows():
+        cells = [task_title(str(row["task"])), display_name(str(row["algo"]))]
+        if np.isfinite(row["core_hours"]):
+            cells += [row["seeds"], row["steps"], f"{1000 * row['s_per_step']:.3g}", f"{row['fixed_s']:.0f}"]
+            cells += [str(row["grid_seeds"]), f"{row['core_hours']:,.1f}"]
+        else:
+            cells += ["not measured", "–", "–", "–", str(row["grid_seeds"]), "–"]
+        lines.append("| " + " | ".join(cells) + " |")
+    runs = int(measured["grid_seeds"].sum())
+    total = float(measured["core_hours"].sum())
+    lines += [f"| **Total** | | | | | | {runs} runs | **{total:,.1f}** |", ""]
+    durations = np.repeat(measured["run_s"].to_numpy(dtype=float), measured["grid_seeds"].to_numpy(dtype=int))
+    if durations.size:
+        wall_h = makespan_s(durations, workers) / 3600.0
+        lines.append(
+            f"Wall clock on {workers} cores: {wall_h:,.1f} h ({wall_h / 24:.1f} days), each next-longest run on the first "
+            f"free core; the longest run alone takes {durations.max() / 3600.0:,.1f} h."
+        )
+    missing = plan[~np.isfinite(plan["core_hours"])]
+    if not missing.empty:
+        names = ", ".join(f"{display_name(str(r['algo']))} on {r['task']}" for _, r in missing.iterrows())
+        lines.append(f"Not measured, left out of the totals: {names}.")
+    return "\n".join(lines) + "\n"
