@@ -15,7 +15,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from sppo_sb3.experiments import benchmark, configs, grid, layout, plot, stats
+from sppo_sb3.experiments import benchmark, configs, display, grid, layout, plot, stats, tables
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 TASK = "SafePointCircle-v0"
@@ -203,3 +203,20 @@ def test_run_folder_format_is_read_as_written(tmp_path: Path) -> None:
     assert tuple(layout.read_curve(run_dir).columns) == layout.CURVE_COLUMNS
     summaries, curves = stats.load_results(tmp_path)
     assert list(summaries["algo"]) == ["sppo"] and len(curves[("dm_control/cheetah-run-v0", "sppo")]) == 1
+
+
+def test_fig7_counts_dm_control_steps_with_the_action_repeat() -> None:
+    assert [display.env_steps_per_step(t) for t in ("DMC-cartpole-swingup-v0", "DMC-walker-run-v0", "DMC-hopper-hop-v0")] == [
+        8,
+        2,
+        4,
+    ]
+    assert display.env_steps_per_step("SafePointCircle-v0") == display.env_steps_per_step("HalfCheetah-v5") == 1
+    rows = [
+        {"task": task, "algo": "ppo", "seed": seed, "steps": 2500, "train_steps_per_s": 100.0, "return_last_n": 1.0 + seed}
+        for task in ("DMC-cartpole-swingup-v0", "Hopper-v5")
+        for seed in range(2)
+    ]
+    table = tables.returns_table_markdown(stats.aggregate(pd.DataFrame(rows)))
+    assert "| DMC-cartpole-swingup-v0 | PPO | 2 | 20000 |" in table and table.count("| 800.0 |") == 1
+    assert "| Hopper-v5 | PPO | 2 | 2500 |" in table and table.count("| 100.0 |") == 1

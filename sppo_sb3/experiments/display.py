@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import re
+
 from sppo_sb3.algorithms import ALGORITHMS, DISPLAY_ORDER, ZOO_BASELINES
+from sppo_sb3.envs.dmc import action_repeat
 
 #: the paper's names of its constrained tasks
 TASK_NAMES: dict[str, str] = {"SafePointCircle-v0": "Point Robot", "SafeHalfCheetahHeight-v1": "Half-Cheetah"}
@@ -48,3 +51,13 @@ def task_sort_key(task: str) -> tuple[bool, str]:
     :param task: gymnasium id.
     """
     return (task not in TASK_NAMES, task)
+
+
+def env_steps_per_step(task: str) -> int:
+    """Env steps in one step of ``task``: TD-MPC's action repeat for the dm_control ids ``DMC-<domain>-<task>-v0``
+    (whose budgets and x-axes the paper and TD-MPC count in dm_control steps), 1 for every other task.
+
+    :param task: gymnasium id.
+    """
+    match = re.fullmatch(r"DMC-(.+)-v\d+", task)
+    return action_repeat(match.group(1)) if match else 1

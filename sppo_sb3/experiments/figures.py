@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from sppo_sb3.experiments.display import algo_color, algo_sort_key, display_name, task_title
+from sppo_sb3.experiments.display import algo_color, algo_sort_key, display_name, env_steps_per_step, task_title
 from sppo_sb3.experiments.stats import curve_band, seed_intervals
 
 #: what the bands and error bars show
@@ -66,10 +66,11 @@ def plot_curves(
             color = algo_color(algo)
             n_seeds = len(curves[(task, algo)])
             label = f"{display_name(algo)} ({n_seeds} seed{'s' if n_seeds != 1 else ''})"
-            ax.plot(band["timesteps"], band["mean"], color=color, label=label, lw=1.6)
-            ax.fill_between(band["timesteps"], band["ci_low"], band["ci_high"], color=color, alpha=0.2, lw=0)
+            steps = band["timesteps"] * env_steps_per_step(task)
+            ax.plot(steps, band["mean"], color=color, label=label, lw=1.6)
+            ax.fill_between(steps, band["ci_low"], band["ci_high"], color=color, alpha=0.2, lw=0)
         ax.set_title(task_title(task), fontsize=10)
-        ax.set_xlabel("env steps")
+        ax.set_xlabel("env steps" if env_steps_per_step(task) == 1 else "env steps (action repeat included)")
         ax.set_ylabel(ylabel)
         ax.ticklabel_format(axis="x", style="sci", scilimits=(0, 3))
         ax.grid(alpha=0.3)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from sppo_sb3.experiments.display import display_name, task_title
+from sppo_sb3.experiments.display import display_name, env_steps_per_step, task_title
 from sppo_sb3.experiments.stats import BOOTSTRAP_REPS, IQM_MIN_SEEDS, order_of_magnitude
 
 #: the paper's Tables I (Point Robot) and II (Half-Cheetah): violations' order of magnitude, safety rate mean, std
@@ -28,12 +28,12 @@ PAPER_TABLES: dict[str, dict[str, tuple[str, float, float]]] = {
 PAPER_TABLE_NAMES: dict[str, str] = {"SafePointCircle-v0": "Table I", "SafeHalfCheetahHeight-v1": "Table II"}
 
 
-def _throughput(row: pd.Series) -> str:
-    """Training env steps/s (monitor clock), else over the whole command."""
+def _throughput(row: pd.Series, scale: int = 1) -> str:
+    """Training env steps/s (monitor clock), else over the whole command; times ``scale`` env steps per step."""
     for key in ("train_steps_per_s_mean", "steps_per_s_mean"):
         value = row.get(key, float("nan"))
         if value is not None and np.isfinite(value):
-            return f"{value:.1f}"
+            return f"{value * scale:.1f}"
     return "–"
 
 
@@ -136,6 +136,9 @@ def safety_tables_markdown(table: pd.DataFrame) -> str:
 def returns_table_markdown(table: pd.DataFrame) -> str:
     """Final training returns (mean [95% CI] over seeds, IQM) per task and algorithm, for the Fig. 7 comparison.
 
+    Env steps count the action repeat of the dm_control tasks (:func:`~sppo_sb3.experiments.display.env_steps_per_step`),
+    as the paper and TD-MPC do.
+
     :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
     """
     iqm = _has_iqm(table, "return_last_n")
@@ -145,9 +148,10 @@ def returns_table_markdown(table: pd.DataFrame) -> str:
         header += " IQM: Return (last episodes) |"
     lines += [header, "|---|---|---|---|---|---|" + ("---|" if iqm else "")]
     for _, row in table.iterrows():
+        scale = env_steps_per_step(str(row["task"]))
         line = (
-            f"| {row['task']} | {display_name(str(row['algo']))} | {row['seeds']} | {row['steps_mean']:.0f} | "
-            f"{_estimate(row, 'return_last_n')} | {_throughput(row)} |"
+            f"| {row['task']} | {display_name(str(row['algo']))} | {row['seeds']} | {row['steps_mean'] * scale:.0f} | "
+            f"{_estimate(row, 'return_last_n')} | {_throughput(row, scale)} |"
         )
         lines.append(line + (f" {_iqm(row, 'return_last_n')} |" if iqm else ""))
     return "\n".join(lines) + "\n"
