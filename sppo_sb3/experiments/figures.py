@@ -32,6 +32,21 @@ def _pyplot() -> Any:
     return plt
 
 
+#: most panels in a row of a figure; more tasks wrap onto further rows
+PANELS_PER_ROW = 3
+
+
+def _panels(plt: Any, n: int) -> tuple[Any, list[Any]]:
+    """A figure of ``n`` panels, :data:`PANELS_PER_ROW` per row; the unused ones of the last row are hidden."""
+    cols = min(n, PANELS_PER_ROW)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(5.0 * cols, 3.6 * rows), squeeze=False)
+    flat = list(axes.flat)
+    for ax in flat[n:]:
+        ax.set_visible(False)
+    return fig, flat[:n]
+
+
 def plot_curves(
     curves: dict[tuple[str, str], list[pd.DataFrame]],
     tasks: Sequence[str],
@@ -56,8 +71,8 @@ def plot_curves(
         :param dpi: resolution.
     """
     plt = _pyplot()
-    fig, axes = plt.subplots(1, len(tasks), figsize=(5.0 * len(tasks), 3.6), squeeze=False)
-    for ax, task in zip(axes[0], tasks):
+    fig, axes = _panels(plt, len(tasks))
+    for ax, task in zip(axes, tasks):
         algos = sorted({a for (t, a) in curves if t == task}, key=algo_sort_key)
         for algo in algos:
             band = curve_band(curves[(task, algo)], column, points, smooth)
@@ -92,8 +107,8 @@ def plot_violation_bars(summaries: pd.DataFrame, tasks: Sequence[str], path: Pat
         :param dpi: resolution.
     """
     plt = _pyplot()
-    fig, axes = plt.subplots(1, len(tasks), figsize=(5.0 * len(tasks), 3.6), squeeze=False)
-    for ax, task in zip(axes[0], tasks):
+    fig, axes = _panels(plt, len(tasks))
+    for ax, task in zip(axes, tasks):
         runs = summaries[summaries["task"] == task]
         algos = sorted(runs["algo"].unique(), key=algo_sort_key)
         for x, algo in enumerate(algos):
