@@ -12,6 +12,11 @@ KL, surrogate improvement and surrogate cost. When no point of the trust region 
 the update is the recovery step that decreases the cost the most: ``x = -sqrt(2δ / s)·H⁻¹b``.
 
 The conjugate-gradient solver, the Fisher-vector product and the actor/KL gradients are sb3-contrib TRPO's.
+
+Deviations from Achiam et al.: the reward and cost critics are regressed by Adam minibatches after each step (as
+sb3-contrib's TRPO fits its critic), the constraint value ``c`` is the measured mean episode cost of the rollout's
+finished episodes minus ``d`` (scaled per step for the surrogate), and no cost shaping is added. The cost limit is
+the one shared with PDO and CSC (:data:`~sppo_sb3.common.lagrange.DEFAULT_COST_LIMIT`).
 """
 
 from __future__ import annotations

@@ -4,6 +4,11 @@ Chow et al. 2017 / Tessler et al. 2019 / Ray et al. 2019: the constrained proble
 is solved on its Lagrangian ``L(π, λ) = J_R(π) - λ·(J_C(π) - d)``, ``λ >= 0``: a PPO step on ``π`` with the advantage
 ``(A_R - λ·A_C) / (1 + λ)`` (the ``1 + λ`` keeps its scale as ``λ`` grows), and a projected (dual) gradient step on
 ``λ``: ``λ ← max(0, λ + η_λ·(J_C - d))``. The paper uses it as its "PDO" baseline ([25], Section V-A.3).
+
+Deviations: none from the scheme; the choices the papers leave open are SB3's PPO (one optimizer for the actor and
+the reward critic, minibatch epochs), a cost critic ``V_C`` regressed after the PPO step, and a plain projected
+gradient step on ``λ`` driven by the measured mean episode cost (SAILR's authors' PDO steps ``log λ`` with Adam). The
+cost limit is the one shared with CPO and CSC (:data:`~sppo_sb3.common.lagrange.DEFAULT_COST_LIMIT`).
 """
 
 from __future__ import annotations
