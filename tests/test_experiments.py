@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from tiny_hyperparams import tiny_pdo_yml
 
 from sppo_sb3.experiments import benchmark, configs, display, grid, layout, plot, stats, tables
 
@@ -24,16 +25,7 @@ SEEDS = (0, 1)
 STEPS = 512
 
 TINY_HYPERPARAMS = {
-    "pdo.yml": f"""
-{TASK}:
-  n_timesteps: {STEPS}
-  policy: 'MlpPolicy'
-  n_steps: 256
-  batch_size: 64
-  n_epochs: 1
-  cost_limit: 0.05
-  policy_kwargs: "dict(net_arch=dict(pi=[8], vf=[8]), cost_net_arch=[8])"
-""",
+    "pdo.yml": tiny_pdo_yml(TASK, STEPS),
     "sailr.yml": f"""
 {TASK}:
   n_timesteps: {STEPS}

@@ -17,6 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from tiny_hyperparams import tiny_pdo_yml
 
 from sppo_sb3.experiments import benchmark, layout
 
@@ -25,16 +26,7 @@ ray = pytest.importorskip("ray")
 TASK = "SafePointCircle-v0"
 STEPS = 2048
 KILLED_SEED = 1
-PDO_YML = f"""
-{TASK}:
-  n_timesteps: {STEPS}
-  policy: 'MlpPolicy'
-  n_steps: 256
-  batch_size: 64
-  n_epochs: 1
-  cost_limit: 0.05
-  policy_kwargs: "dict(net_arch=dict(pi=[8], vf=[8]), cost_net_arch=[8])"
-"""
+PDO_YML = tiny_pdo_yml(TASK, STEPS)
 #: how long the test waits for the run to kill to log its first episode
 KILL_TIMEOUT_S = 300.0
 

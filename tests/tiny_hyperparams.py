@@ -11,3 +11,17 @@ TINY_SPPO = [
 ]
 TINY_DDPG = ["learning_starts:60", "batch_size:16", "policy_kwargs:dict(net_arch=[8])"]
 TINY_PPO = ["n_steps:64", "batch_size:32", "n_epochs:1", "policy_kwargs:dict(net_arch=[8])"]
+
+
+def tiny_pdo_yml(task: str, steps: int) -> str:
+    """A ``pdo.yml`` with one entry: ``task`` for ``steps`` env steps with 8-unit networks."""
+    return f"""
+{task}:
+  n_timesteps: {steps}
+  policy: 'MlpPolicy'
+  n_steps: 256
+  batch_size: 64
+  n_epochs: 1
+  cost_limit: 0.05
+  policy_kwargs: "dict(net_arch=dict(pi=[8], vf=[8]), cost_net_arch=[8])"
+"""

@@ -38,17 +38,10 @@ AGGREGATED_KEYS: tuple[str, ...] = (
     "eval_unshielded_violations",
     "eval_unshielded_safe_rate",
 )
-#: the figures that also get a 95% bootstrap confidence interval of their mean over seeds, and an IQM
-INTERVAL_KEYS: tuple[str, ...] = (
-    "return_last_n",
-    "cumulative_violations",
-    "safety_rate",
-    "eval_return",
-    "eval_violations",
-    "eval_safe_rate",
-    "eval_unshielded_return",
-    "eval_unshielded_violations",
-    "eval_unshielded_safe_rate",
+#: the figures that also get a 95% bootstrap confidence interval of their mean over seeds, and an IQM: all but counts
+#: and throughputs
+INTERVAL_KEYS: tuple[str, ...] = tuple(
+    key for key in AGGREGATED_KEYS if key not in ("episodes", "steps", "steps_per_s", "train_steps_per_s")
 )
 #: bootstrap resamples of every confidence interval (aggregates and every point of a curve)
 BOOTSTRAP_REPS = 2000
