@@ -347,19 +347,20 @@ class SafeExperimentManager(ExperimentManager):
         """Deployment safety (Corollary 1): the learned policy with and without the shield, printed side by side.
 
         Runs :attr:`deployment_episodes` deterministic episodes of each deployment on a fresh env of the task (none when
-        0, or under ``VecNormalize``, whose statistics the raw env lacks). Also logged (TensorBoard) under
-        ``deployment_eval/`` and ``deployment_eval_unshielded/`` at the final step.
+        0). A model trained under ``VecNormalize`` sees the observations normalised with its final statistics. Also
+        logged (TensorBoard) under ``deployment_eval/`` and ``deployment_eval_unshielded/`` at the final step.
         """
         episodes = self.deployment_episodes
-        if episodes <= 0 or self.normalize:
+        if episodes <= 0:
             return {}
         gym_id, env_kwargs = self.env_name.gym_id, dict(self.env_kwargs)
+        vec_normalize = model.get_vec_normalize_env()
 
         def make_env() -> gym.Env:
             return gym.make(gym_id, **env_kwargs)
 
         results = {
-            name: evaluate_deployment(model, make_env, episodes, shielded=shielded, seed=self.seed)
+            name: evaluate_deployment(model, make_env, episodes, shielded, seed=self.seed, vec_normalize=vec_normalize)
             for name, shielded in (("eval", True), ("eval_unshielded", False))
         }
         print(f"deployment, {episodes} deterministic episodes each (the learned policy with / without the shield):")

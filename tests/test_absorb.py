@@ -6,9 +6,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
-from sppo_sb3 import SPPO
+from sppo_sb3 import PDO, SPPO
 from sppo_sb3.common.evaluation import evaluate_deployment
 from sppo_sb3.envs.point_circle import PointParams, point_is_unsafe, point_step
 from sppo_sb3.shield import LearnedCostCriticRule, PointCircleShieldingRule, ShieldWrapper
@@ -206,6 +207,45 @@ def test_evaluate_deployment_with_and_without_the_shield() -> None:
     assert model.shield_at_predict  # restored after the evaluation
     with pytest.raises(ValueError, match="n_eval_episodes"):
         evaluate_deployment(model, make, n_eval_episodes=0)
+
+
+class ObservationLog(gym.Wrapper):
+    """Keeps every observation the env returns."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.seen: list[np.ndarray] = []
+
+    def reset(self, **kwargs):  # type: ignore[no-untyped-def]
+        obs, info = self.env.reset(**kwargs)
+        self.seen.append(obs)
+        return obs, info
+
+    def step(self, action):  # type: ignore[no-untyped-def]
+        obs, *rest = self.env.step(action)
+        self.seen.append(obs)
+        return (obs, *rest)
+
+
+def test_evaluate_deployment_normalises_the_policys_observations_only() -> None:
+    """Under VecNormalize the policy sees normalised observations; the env and its shield keep the raw ones."""
+    venv = VecNormalize(DummyVecEnv([lambda: gym.make("SafePointCircle-v0")]), norm_reward=False)
+    venv.obs_rms.mean[:] = 1.0
+    venv.obs_rms.var[:] = 4.0
+    model = PDO("MlpPolicy", venv, n_steps=64, batch_size=64, seed=0)
+    seen_by_policy: list[np.ndarray] = []
+    predict = model.predict
+
+    def spy(obs, *args, **kwargs):  # type: ignore[no-untyped-def]
+        seen_by_policy.append(np.array(obs))
+        return predict(obs, *args, **kwargs)
+
+    model.predict = spy  # type: ignore[method-assign]
+    raw = ObservationLog(gym.make("SafePointCircle-v0", max_episode_steps=5))
+    evaluate_deployment(model, lambda: raw, n_eval_episodes=1, shielded=False, vec_normalize=venv)
+    assert len(seen_by_policy) == 5 and len(raw.seen) == 6
+    expected = np.clip((np.array(raw.seen[:5]) - 1.0) / np.sqrt(4.0 + venv.epsilon), -venv.clip_obs, venv.clip_obs)
+    np.testing.assert_allclose(np.array(seen_by_policy), expected, rtol=1e-5, atol=1e-6)
 
 
 # ---------------------------------------------------------------------------- Alg. 1 line 12: refine_shield

@@ -16,6 +16,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.vec_env import VecNormalize
 
 from sppo_sb3.common.costs import COST_KEY
 from sppo_sb3.common.safety import INTERVENED_KEY
@@ -45,6 +46,7 @@ def evaluate_deployment(
     shielded: bool = True,
     deterministic: bool = True,
     seed: int | None = 0,
+    vec_normalize: VecNormalize | None = None,
 ) -> dict[str, float]:
     """Run the learned policy for ``n_eval_episodes`` full episodes, with or without the model's shield.
 
@@ -56,8 +58,9 @@ def evaluate_deployment(
     :param shielded: execute the actions through :class:`ShieldWrapper` with ``model.shield_rule``.
     :param deterministic: deterministic actions (deployment).
     :param seed: seeds the first reset (the following episodes continue the env's RNG); ``None``: unseeded.
-        The env's observations go to ``predict`` as they are: a model trained under ``VecNormalize`` needs the same
-        normalisation in ``make_env``.
+    :param vec_normalize: the ``VecNormalize`` the model was trained under: the policy sees the observations
+        normalised with its statistics, the shield the raw ones; ``None``: the observations go to ``predict`` as they
+        are.
     :return: mean return, mean violations per episode, safe-episode rate (% of episodes without a violation) and
         mean shield interventions per episode.
     """
@@ -75,7 +78,8 @@ def evaluate_deployment(
             state: Any = None
             done, start = False, np.array([True])
             while not done:
-                action, state = model.predict(obs, state=state, episode_start=start, deterministic=deterministic)
+                policy_obs = obs if vec_normalize is None else vec_normalize.normalize_obs(obs)
+                action, state = model.predict(policy_obs, state=state, episode_start=start, deterministic=deterministic)
                 obs, reward, terminated, truncated, info = env.step(action)
                 start = np.array([False])
                 totals += (float(reward), float(info.get(COST_KEY, 0.0)) > 0, bool(info.get(INTERVENED_KEY, False)))

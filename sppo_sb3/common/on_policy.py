@@ -31,7 +31,7 @@ from stable_baselines3.common.utils import obs_as_tensor
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer, CostRolloutBufferSamples
-from sppo_sb3.common.cost_policy import CostActorCriticPolicy
+from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
 from sppo_sb3.common.cost_tracker import EpisodeCostTracker
 from sppo_sb3.common.gae import compute_gae
 from sppo_sb3.common.lagrange import lagrange_update, lagrangian_advantage
@@ -93,6 +93,8 @@ class SafeOnPolicyMixin:
     rollout_buffer: RolloutBuffer
     rollout_buffer_class: type[RolloutBuffer] | None
     gamma: float
+    n_epochs: int
+    batch_size: int
     num_timesteps: int
     logger: Any
     use_sde: bool
@@ -318,6 +320,22 @@ class SafeOnPolicyMixin:
         callback.update_locals(locals())
         callback.on_rollout_end()
         return True
+
+    # --- the update -----------------------------------------------------------------------------------------------
+
+    def _train_on_penalised_advantage(self, penalty: float) -> None:
+        """The PPO step on ``(A_R - κ·A_C) / (1 + κ)`` with ``κ = penalty``, then the cost critic's regression on the
+        rollout's cost returns (PDO: ``κ = λ``, the Lagrange multiplier; SAILR: its fixed penalty coefficient).
+
+        :param penalty: ``κ >= 0``.
+        """
+        buf = self.rollout_buffer
+        assert isinstance(buf, CostRolloutBuffer)
+        assert not buf.generator_ready, "the advantages must be combined before the buffer is flattened"
+        buf.advantages = lagrangian_advantage(buf.advantages, buf.cost_advantages, penalty)
+        super().train()  # type: ignore[misc]
+        for key, value in fit_critics(self.policy, buf, self.n_epochs, self.batch_size, reward_critic=False).items():
+            self.logger.record(f"train/{key}", value)
 
     def dump_logs(self, iteration: int = 0) -> None:
         """Write the ``safety/`` figures and the measured episode cost, then SB3's logs."""

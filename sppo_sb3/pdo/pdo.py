@@ -22,8 +22,8 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer
-from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
-from sppo_sb3.common.lagrange import DEFAULT_COST_LIMIT, LagrangianMixin, lagrangian_advantage
+from sppo_sb3.common.cost_policy import CostActorCriticPolicy
+from sppo_sb3.common.lagrange import DEFAULT_COST_LIMIT, LagrangianMixin
 from sppo_sb3.common.on_policy import SafeOnPolicyMixin
 from sppo_sb3.pdo.policies import MlpPolicy
 
@@ -143,13 +143,7 @@ class PDO(LagrangianMixin, SafeOnPolicyMixin, PPO):
 
     def train(self) -> None:
         """Dual step on ``λ``, PPO step on ``(A_R - λ·A_C) / (1 + λ)``, then the cost critic's regression."""
-        lam = self.update_lagrange_multiplier()
-        buf = self.rollout_buffer
-        assert not buf.generator_ready, "the advantages must be combined before the buffer is flattened"
-        buf.advantages = lagrangian_advantage(buf.advantages, buf.cost_advantages, lam)
-        super().train()
-        for key, value in fit_critics(self.policy, buf, self.n_epochs, self.batch_size, reward_critic=False).items():
-            self.logger.record(f"train/{key}", value)
+        self._train_on_penalised_advantage(self.update_lagrange_multiplier())
 
     def learn(
         self: SelfPDO,

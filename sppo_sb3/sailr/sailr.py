@@ -35,8 +35,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer
-from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
-from sppo_sb3.common.lagrange import lagrangian_advantage
+from sppo_sb3.common.cost_policy import CostActorCriticPolicy
 from sppo_sb3.common.on_policy import SafeOnPolicyMixin
 from sppo_sb3.common.safety import INTERVENED_KEY
 from sppo_sb3.sailr.policies import MlpPolicy
@@ -269,16 +268,11 @@ class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
 
         A rollout without unmasked steps is skipped, with a log entry.
         """
-        buf = self.rollout_buffer
-        n_learnable = buf.n_learnable
+        n_learnable = self.rollout_buffer.n_learnable
         self.logger.record("train/learnable_fraction", n_learnable / (self.n_steps * self.n_envs))
         if n_learnable == 0:
             return
-        assert not buf.generator_ready, "the advantages must be combined before the buffer is flattened"
-        buf.advantages = lagrangian_advantage(buf.advantages, buf.cost_advantages, self.penalty)
-        super().train()
-        for key, value in fit_critics(self.policy, buf, self.n_epochs, self.batch_size, reward_critic=False).items():
-            self.logger.record(f"train/{key}", value)
+        self._train_on_penalised_advantage(self.penalty)
 
     def learn(
         self: SelfSAILR,
