@@ -144,3 +144,26 @@ def test_figures_draw_intervals(tmp_path: Path) -> None:
     figures.plot_violation_bars(_summaries({"pdo": 1, "sppo": 4}), [TASK], tmp_path / "bars.png")
     for name in ("curves.png", "bars.png"):
         assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_training_return_mean_is_the_curves_mean_height_and_rewards_learning_sooner() -> None:
+    steps = np.array([100, 200, 300, 400, 500])
+    linear = pd.DataFrame({"timesteps": steps, "return": [0.0, 25.0, 50.0, 75.0, 100.0]})
+    assert stats.training_return_mean(linear) == pytest.approx(50.0)
+    sooner = pd.DataFrame({"timesteps": steps, "return": [0.0, 100.0, 100.0, 100.0, 100.0]})
+    later = pd.DataFrame({"timesteps": steps, "return": [0.0, 0.0, 0.0, 0.0, 100.0]})
+    assert stats.training_return_mean(sooner) > stats.training_return_mean(linear) > stats.training_return_mean(later)
+    assert np.isnan(stats.training_return_mean(linear.iloc[:0]))
+
+
+def test_tables_show_the_mean_return_over_training() -> None:
+    summaries = _summaries({"sppo": 2})
+    summaries["return_training_mean"] = [30.0, 40.0]
+    table = stats.aggregate(summaries)
+    row = table.set_index("algo").loc["sppo"]
+    assert row["return_training_mean_mean"] == pytest.approx(35.0)
+    markdown = tables.safety_tables_markdown(table)
+    header = next(line for line in markdown.splitlines() if line.startswith("| Method"))
+    rule = markdown.splitlines()[markdown.splitlines().index(header) + 1]
+    assert "Return (mean over training)" in header and header.count(" |") == rule.count("---|")
+    assert f"| {row['return_training_mean_mean']:.2f} [" in markdown

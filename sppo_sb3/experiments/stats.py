@@ -27,6 +27,7 @@ AGGREGATED_KEYS: tuple[str, ...] = (
     "cumulative_violations",
     "safety_rate",
     "return_last_n",
+    "return_training_mean",
     "episodes",
     "steps",
     "steps_per_s",
@@ -51,20 +52,40 @@ BOOTSTRAP_SEED = 0
 CONFIDENCE = 0.95
 #: fewest seeds with an interquartile mean (the 25% trimmed mean drops a quarter of the seeds at each end)
 IQM_MIN_SEEDS = 4
+#: env steps at which :func:`training_return_mean` reads a learning curve
+TRAINING_CURVE_POINTS = 100
+
+
+def training_return_mean(curve: pd.DataFrame, points: int = TRAINING_CURVE_POINTS) -> float:
+    """A learning-efficiency figure: the mean height of a run's learning curve over its env steps.
+
+    The training-episode returns, interpolated linearly between the episode ends at ``points`` evenly spaced env steps
+    from the first episode's end to the last one's, averaged: the area under the curve over its length. Of two runs
+    that end at the same return, the one that got there sooner scores higher.
+
+    :param curve: the run's ``curve.csv`` (``timesteps``, ``return``).
+    :return: the mean, NaN without an episode.
+    """
+    if curve.empty:
+        return float("nan")
+    steps = curve["timesteps"].to_numpy(dtype=float)
+    grid = np.linspace(steps[0], steps[-1], points)
+    return float(np.mean(np.interp(grid, steps, curve["return"].to_numpy(dtype=float))))
 
 
 def load_results(root: Path) -> tuple[pd.DataFrame, dict[tuple[str, str], list[pd.DataFrame]]]:
     """The finished runs under a grid's output folder (:mod:`sppo_sb3.experiments.layout`).
 
     :param root: the benchmark's output folder.
-    :return: one row of ``summary.json`` per run, and the runs' curves by ``(task, algo)`` (seed order).
+    :return: one row of ``summary.json`` per run, with its :func:`training_return_mean` as ``return_training_mean``,
+        and the runs' curves by ``(task, algo)`` (seed order).
     """
     rows: list[dict[str, Any]] = []
     curves: dict[tuple[str, str], list[pd.DataFrame]] = {}
     for run_dir in layout.finished_run_dirs(root):
-        summary = layout.read_summary(run_dir)
-        rows.append(summary)
-        curves.setdefault((summary["task"], summary["algo"]), []).append(layout.read_curve(run_dir))
+        summary, curve = layout.read_summary(run_dir), layout.read_curve(run_dir)
+        rows.append({**summary, "return_training_mean": training_return_mean(curve)})
+        curves.setdefault((summary["task"], summary["algo"]), []).append(curve)
     return pd.DataFrame(rows), curves
 
 

@@ -78,6 +78,7 @@ SAFETY_ESTIMATES: tuple[tuple[str, int, str], ...] = (
     ("cumulative_violations", 1, "Cumulative violations"),
     ("safety_rate", 2, "Safety rate (%)"),
     ("return_last_n", 2, "Return (last episodes)"),
+    ("return_training_mean", 2, "Return (mean over training)"),
 )
 
 
@@ -108,8 +109,10 @@ def safety_tables_markdown(table: pd.DataFrame) -> str:
         "<!-- written by scripts/plot_results.py -->",
         "Violations (10^*): order of magnitude of the mean cumulative constraint violations over training, as in the",
         "paper (`0`: none; `10 ↓`: 1–9; `10^k ↑`: at least 10^k). Safety rate: episodes without a violation / all",
-        "training episodes. Return: mean training-episode return of each run's last episodes. Env steps/s: training",
-        "throughput (start-up excluded), mean over seeds. The paper's safety rate is mean ± std.",
+        "training episodes. Return (last episodes): mean training-episode return of each run's last episodes. Return",
+        "(mean over training): each run's learning curve averaged over its env steps, its area over its length (higher:",
+        "learned sooner). Env steps/s: training throughput (start-up excluded), mean over seeds. The paper's safety",
+        "rate is mean ± std.",
         INTERVAL_LEGEND,
         "",
     ]
@@ -123,11 +126,9 @@ def safety_tables_markdown(table: pd.DataFrame) -> str:
         header = "| Method | Violations (10^*) |" + "".join(f" {title} |" for _, _, title in SAFETY_ESTIMATES)
         header += " Episodes | Shield interventions | Env steps/s |"
         header += "".join(f" IQM: {title} |" for key, _, title in SAFETY_ESTIMATES if key in iqm_keys)
-        rule = "|---|---|---|---|---|---|---|---|" + "---|" * len(iqm_keys)
         if paper:
             header += " Paper: violations | Paper: safety rate (%) |"
-            rule += "---|---|"
-        lines += [header, rule]
+        lines += [header, "|" + "---|" * header.count(" |")]
         lines += [_safety_row(row, paper, iqm_keys) for _, row in group.iterrows()]
         lines.append("")
     return "\n".join(lines)
