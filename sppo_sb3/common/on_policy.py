@@ -10,6 +10,9 @@ cost-aware, written once, with a hook for each thing the algorithms do different
 - :meth:`~SafeOnPolicyMixin._store_transition`: what else is stored per transition (CSC: its cost critic's replay
   buffer).
 
+and the update PDO and SAILR share, PPO on the penalised advantage followed by the cost critic's regression
+(:meth:`~SafeOnPolicyMixin._train_on_penalised_advantage`).
+
 Its parts live in their own modules and stay importable from here: :func:`~sppo_sb3.common.gae.compute_gae`,
 :class:`~sppo_sb3.common.cost_buffer.CostRolloutBuffer`, :class:`~sppo_sb3.common.cost_policy.CostActorCriticPolicy`,
 :class:`~sppo_sb3.common.cost_tracker.EpisodeCostTracker` and the Lagrange multiplier of
@@ -78,7 +81,8 @@ class SafeOnPolicyMixin:
       the model;
     - ``self.cost_tracker`` (:class:`EpisodeCostTracker`): the measured episode cost ``J_C``;
     - a :class:`CostRolloutBuffer` filled with costs, cost values and cost GAE;
-    - the hooks :meth:`_choose_actions`, :meth:`_learning_transition` and :meth:`_store_transition`.
+    - the hooks :meth:`_choose_actions`, :meth:`_learning_transition` and :meth:`_store_transition`;
+    - :meth:`_train_on_penalised_advantage`, for a ``train`` that follows ``(A_R - κ·A_C) / (1 + κ)``.
 
     :cvar uses_cost_critic: whether the policy must have a cost value head (:class:`CostActorCriticPolicy`).
     """
