@@ -177,6 +177,16 @@ def _yml_entries() -> list[tuple[str, str]]:
     return entries
 
 
+def _yml_files() -> list[Path]:
+    """The yml files of ``hyperparams/`` and of its variant folders (``small/``, ...; ``dmc/`` has test_dmc.py)."""
+    variants = [path for path in sorted(HYPERPARAMS.glob("*/*.yml")) if path.parent.name != "dmc"]
+    return sorted(HYPERPARAMS.glob("*.yml")) + variants
+
+
+def _yml_file_entries() -> list[tuple[Path, str]]:
+    return [(path, env_id) for path in _yml_files() for env_id in yaml.safe_load(path.read_text())]
+
+
 def test_yml_coverage() -> None:
     entries = set(_yml_entries())
     for algo in ALGOS:
@@ -184,13 +194,16 @@ def test_yml_coverage() -> None:
     assert {("sppo", "Pendulum-v1"), ("sppo", "HalfCheetah-v5")} <= entries
 
 
-@pytest.mark.parametrize(("algo", "env_id"), _yml_entries())
-def test_yml_entry_constructs(algo: str, env_id: str, tmp_path: Path) -> None:
+def _entry_id(value: object) -> str:
+    return str(value.relative_to(HYPERPARAMS)) if isinstance(value, Path) else str(value)
+
+
+@pytest.mark.parametrize(("config", "env_id"), _yml_file_entries(), ids=_entry_id)
+def test_yml_entry_constructs(config: Path, env_id: str, tmp_path: Path) -> None:
     """Each entry, processed by rl-zoo3's own code (schedules, policy_kwargs, normalize, ...), builds its model."""
+    algo = config.stem
     manager_cls = zoo.install()
-    manager = manager_cls(
-        argparse.Namespace(), algo, env_id, str(tmp_path), eval_freq=-1, config=str(HYPERPARAMS / f"{algo}.yml"), verbose=0
-    )
+    manager = manager_cls(argparse.Namespace(), algo, env_id, str(tmp_path), eval_freq=-1, config=str(config), verbose=0)
     cls = zoo.algo_classes()[algo]
     accepted = set(inspect.signature(cls.__init__).parameters)
     unprocessed, _ = manager.read_hyperparameters()
