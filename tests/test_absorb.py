@@ -6,6 +6,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from recording import RecordExecuted
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
@@ -209,24 +210,6 @@ def test_evaluate_deployment_with_and_without_the_shield() -> None:
         evaluate_deployment(model, make, n_eval_episodes=0)
 
 
-class ObservationLog(gym.Wrapper):
-    """Keeps every observation the env returns."""
-
-    def __init__(self, env: gym.Env) -> None:
-        super().__init__(env)
-        self.seen: list[np.ndarray] = []
-
-    def reset(self, **kwargs):  # type: ignore[no-untyped-def]
-        obs, info = self.env.reset(**kwargs)
-        self.seen.append(obs)
-        return obs, info
-
-    def step(self, action):  # type: ignore[no-untyped-def]
-        obs, *rest = self.env.step(action)
-        self.seen.append(obs)
-        return (obs, *rest)
-
-
 def test_evaluate_deployment_normalises_the_policys_observations_only() -> None:
     """Under VecNormalize the policy sees normalised observations; the env and its shield keep the raw ones."""
     venv = VecNormalize(DummyVecEnv([lambda: gym.make("SafePointCircle-v0")]), norm_reward=False)
@@ -241,10 +224,11 @@ def test_evaluate_deployment_normalises_the_policys_observations_only() -> None:
         return predict(obs, *args, **kwargs)
 
     model.predict = spy  # type: ignore[method-assign]
-    raw = ObservationLog(gym.make("SafePointCircle-v0", max_episode_steps=5))
+    raw = RecordExecuted(gym.make("SafePointCircle-v0", max_episode_steps=5))
     evaluate_deployment(model, lambda: raw, n_eval_episodes=1, shielded=False, vec_normalize=venv)
-    assert len(seen_by_policy) == 5 and len(raw.seen) == 6
-    expected = np.clip((np.array(raw.seen[:5]) - 1.0) / np.sqrt(4.0 + venv.epsilon), -venv.clip_obs, venv.clip_obs)
+    raw_obs = np.array([obs for obs, _ in raw.log])
+    assert len(seen_by_policy) == len(raw_obs) == 5
+    expected = np.clip((raw_obs - 1.0) / np.sqrt(4.0 + venv.epsilon), -venv.clip_obs, venv.clip_obs)
     np.testing.assert_allclose(np.array(seen_by_policy), expected, rtol=1e-5, atol=1e-6)
 
 

@@ -2,11 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import gymnasium as gym
 import numpy as np
 import pytest
+from recording import RecordExecuted
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
@@ -18,26 +17,6 @@ from sppo_sb3.shield import PointCircleShieldingRule, ShieldWrapper
 
 TINY = dict(net_arch=[16])
 FAST = dict(n_steps=64, batch_size=32, n_epochs=2, policy_kwargs=TINY)
-
-
-class RecordExecuted(gym.Wrapper):
-    """Below the shield: records the observation and the action the env actually received."""
-
-    def __init__(self, env: gym.Env) -> None:
-        super().__init__(env)
-        self.log: list[tuple[np.ndarray, np.ndarray]] = []
-        self._obs: np.ndarray | None = None
-
-    def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict]:
-        obs, info = self.env.reset(**kwargs)
-        self._obs = obs
-        return obs, info
-
-    def step(self, action: np.ndarray) -> tuple[Any, ...]:
-        self.log.append((np.array(self._obs, dtype=np.float64), np.array(action, dtype=np.float64)))
-        obs, reward, terminated, truncated, info = self.env.step(action)
-        self._obs = obs
-        return obs, reward, terminated, truncated, info
 
 
 class GrabRollout(BaseCallback):

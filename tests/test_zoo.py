@@ -169,22 +169,16 @@ def test_train_cli_prints_safety_summary(tmp_path: Path) -> None:
     assert evaluations["costs"].shape == evaluations["results"].shape == (2, 2)
 
 
-def _yml_entries() -> list[tuple[str, str]]:
-    entries = []
-    for path in sorted(HYPERPARAMS.glob("*.yml")):
-        for env_id in yaml.safe_load(path.read_text()):
-            entries.append((path.stem, env_id))
-    return entries
-
-
-def _yml_files() -> list[Path]:
-    """The yml files of ``hyperparams/`` and of its variant folders (``small/``, ...; ``dmc/`` has test_dmc.py)."""
-    variants = [path for path in sorted(HYPERPARAMS.glob("*/*.yml")) if path.parent.name != "dmc"]
-    return sorted(HYPERPARAMS.glob("*.yml")) + variants
-
-
 def _yml_file_entries() -> list[tuple[Path, str]]:
-    return [(path, env_id) for path in _yml_files() for env_id in yaml.safe_load(path.read_text())]
+    """Every entry of ``hyperparams/*.yml`` and of its variant folders (``small/``, ...; ``dmc/`` has test_dmc.py)."""
+    variants = [path for path in sorted(HYPERPARAMS.glob("*/*.yml")) if path.parent.name != "dmc"]
+    files = sorted(HYPERPARAMS.glob("*.yml")) + variants
+    return [(path, env_id) for path in files for env_id in yaml.safe_load(path.read_text())]
+
+
+def _yml_entries() -> list[tuple[str, str]]:
+    """``(algo, env_id)`` of the top-level yml files, the ones ``sppo-train --algo ALGO`` reads by default."""
+    return [(path.stem, env_id) for path, env_id in _yml_file_entries() if path.parent == HYPERPARAMS]
 
 
 def test_yml_coverage() -> None:
