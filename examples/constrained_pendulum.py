@@ -31,7 +31,8 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sppo_sb3 import SPPO
-from sppo_sb3.common.costs import COST_KEY, shaped_cost
+from sppo_sb3.common.costs import shaped_cost
+from sppo_sb3.common.keys import COST_KEY
 from sppo_sb3.common.safety import SafetyMetrics
 from sppo_sb3.shield import ShieldingRule, ShieldWrapper, register_shielding_rule
 

@@ -23,7 +23,8 @@ from gymnasium.envs.registration import register, registry
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sppo_sb3.common.costs import COST_KEY, shaped_cost
+from sppo_sb3.common.costs import shaped_cost
+from sppo_sb3.common.keys import COST_KEY
 from sppo_sb3.common.safety import SafetyMetrics
 from sppo_sb3.shield import ShieldingRule, ShieldWrapper, default_shielding_rule, register_shielding_rule
 

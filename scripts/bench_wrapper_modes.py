@@ -18,7 +18,7 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
 
 import sppo_sb3  # noqa: F401  (registers the task)
-from sppo_sb3.common.costs import COST_KEY
+from sppo_sb3.common.keys import COST_KEY
 from sppo_sb3.shield import PointCircleShieldingRule, ShieldWrapper
 from sppo_sb3.shield.wrapper import OnIntervention
 

@@ -116,9 +116,9 @@ def test_termination_model_switch(tmp_path) -> None:
     assert model.policy.model.termination is not None
     model.save(tmp_path / "m.zip")
     assert SPPO.load(tmp_path / "m.zip").policy.model.termination is not None
-    # a policy saved before the head existed has no "termination" constructor argument: it loads without the head
     space = gym.make("SafePointCircle-v0")
-    assert TOLDPolicy(space.observation_space, space.action_space, lambda _: 1e-3).model.termination is None
+    with pytest.raises(TypeError, match="termination"):  # no default: a saved policy always says which model it is
+        TOLDPolicy(space.observation_space, space.action_space, lambda _: 1e-3)
 
 
 # ---------------------------------------------------------------------------- Definition 2, β and Theorem 1

@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from sppo_sb3.common.safety import INTERVENED_KEY
-from sppo_sb3.shield.wrapper import PROPOSED_ACTION_KEY
+from sppo_sb3.common.keys import INTERVENED_KEY, PROPOSED_ACTION_KEY
 from sppo_sb3.sppo.buffers import ShieldedReplayBuffer
 
 OBS = spaces.Box(-10, 10, (1,), np.float32)

@@ -66,12 +66,6 @@ def test_check_env_and_registration(env: SafeHalfCheetahHeightEnv) -> None:
     made.close()
 
 
-@pytest.mark.filterwarnings("ignore:.*out of date:DeprecationWarning")  # gymnasium's own notice, before ours
-def test_v0_is_retired_with_a_reason() -> None:
-    with pytest.raises(gym.error.DeprecatedEnv, match=r"centre of mass.*SafeHalfCheetahHeight-v1"):
-        gym.make("SafeHalfCheetahHeight-v0")
-
-
 def test_height_is_the_body_frame_origin_mid_range_at_reset() -> None:
     """SAILR's ``get_body_com("fthigh")`` is the body frame origin ``data.xpos``: 0.70 at reset, not the CoM's 0.575."""
     env = SafeHalfCheetahHeightEnv(reset_noise_scale=0.0)  # the default reset state itself
@@ -79,7 +73,7 @@ def test_height_is_the_body_frame_origin_mid_range_at_reset() -> None:
     height = env.fthigh_height()
     assert height == env.data.xpos[env.model.body("fthigh").id, 2]
     assert height == pytest.approx(0.70, abs=0.01)
-    assert env.data.xipos[env.model.body("fthigh").id, 2] == pytest.approx(0.575, abs=0.01)  # v0's quantity
+    assert env.data.xipos[env.model.body("fthigh").id, 2] == pytest.approx(0.575, abs=0.01)  # the centre of mass
 
 
 def test_reward_is_forward_velocity_over_five(env: SafeHalfCheetahHeightEnv) -> None:

@@ -37,7 +37,7 @@ def make_policy(obs_dim: int = 4, action_dim: int = 2) -> TOLDPolicy:
     th.manual_seed(0)
     obs_space = gym.spaces.Box(-1, 1, (obs_dim,), np.float32)
     act_space = gym.spaces.Box(-1, 1, (action_dim,), np.float32)
-    policy = TOLDPolicy(obs_space, act_space, lambda _: 1e-3, **SMALL)
+    policy = TOLDPolicy(obs_space, act_space, lambda _: 1e-3, termination=False, **SMALL)
     init_optimizer_state(policy.optimizer)
     init_optimizer_state(policy.pi_optimizer)
     return policy

@@ -12,7 +12,7 @@ import pytest
 from stable_baselines3.common.env_checker import check_env
 
 from sppo_sb3 import SPPO
-from sppo_sb3.common.costs import COST_KEY
+from sppo_sb3.common.keys import COST_KEY
 from sppo_sb3.shield import ShieldWrapper
 
 

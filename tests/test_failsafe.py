@@ -20,6 +20,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3 import SPPO
+from sppo_sb3.common.keys import ABSORBED_KEY, ENV_REWARD_KEY, EXECUTED_ACTION_KEY, PROPOSED_ACTION_KEY
 from sppo_sb3.sailr import SAILR
 from sppo_sb3.shield import (
     SHIELDING_RULES,
@@ -32,7 +33,6 @@ from sppo_sb3.shield import (
     register_shielding_rule,
 )
 from sppo_sb3.shield.persistence import ShieldRuleLoadError
-from sppo_sb3.shield.wrapper import ABSORBED_KEY, ENV_REWARD_KEY, EXECUTED_ACTION_KEY, PROPOSED_ACTION_KEY
 
 SPPO_TINY = dict(
     learning_starts=60,

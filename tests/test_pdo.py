@@ -10,7 +10,8 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
-from sppo_sb3.pdo import PDO, lagrange_update
+from sppo_sb3.common.lagrange import lagrange_update
+from sppo_sb3.pdo import PDO
 
 TINY = dict(net_arch=[16])
 FAST = dict(n_steps=64, batch_size=32, n_epochs=2, policy_kwargs=TINY)
@@ -103,11 +104,7 @@ def test_pdo_seed_is_reproducible() -> None:
     np.testing.assert_array_equal(run(), run())
 
 
-def test_initial_lambda_is_a_deprecated_name_of_lagrange_init() -> None:
-    with pytest.warns(DeprecationWarning, match="lagrange_init"):
-        model = PDO("MlpPolicy", "SafePointCircle-v0", initial_lambda=2.0, **FAST)
-    assert model.lagrange_multiplier == 2.0
-    with pytest.raises(ValueError, match="pass lagrange_init only"):
-        PDO("MlpPolicy", "SafePointCircle-v0", initial_lambda=2.0, lagrange_init=1.0, **FAST)
+def test_lagrange_init_sets_the_initial_multiplier() -> None:
+    assert PDO("MlpPolicy", "SafePointCircle-v0", lagrange_init=2.0, **FAST).lagrange_multiplier == 2.0
     with pytest.raises(ValueError, match="lagrange_init must be >= 0"):
         PDO("MlpPolicy", "SafePointCircle-v0", lagrange_init=-1.0, **FAST)

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import ast
 import io
 import subprocess
 import sys
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -17,8 +15,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-import sppo_sb3  # registers SafePointCircle-v0 and SafeHalfCheetahHeight-v1
-from sppo_sb3.common.costs import COST_KEY, shaped_cost
+from sppo_sb3.common.costs import shaped_cost
+from sppo_sb3.common.keys import ADVANTAGE_KEY, COST_KEY, PROPOSED_ACTION_KEY
 from sppo_sb3.envs.point_circle import PointParams, point_is_unsafe, point_step
 from sppo_sb3.sailr import SAILR
 from sppo_sb3.shield import (
@@ -34,7 +32,6 @@ from sppo_sb3.shield import (
     register_shielding_rule,
     resolve_shielding_rule,
 )
-from sppo_sb3.shield.wrapper import ADVANTAGE_KEY, PROPOSED_ACTION_KEY
 
 PARAMS = PointParams()
 INTERVENED = "shield_intervened"
@@ -478,7 +475,6 @@ def test_learned_rule_rejects_mismatched_state_and_inputs() -> None:
 
 # --------------------------------------------------------------------------------------------- registry
 ENV_MODULES = ("sppo_sb3.envs.point_circle", "sppo_sb3.envs.half_cheetah_height")
-ENVS_DIR = Path(sppo_sb3.__file__).parent / "envs"
 
 
 @pytest.mark.parametrize(
@@ -525,28 +521,6 @@ def test_registered_rule_env_parameters() -> None:
     finally:
         SHIELDING_RULES.pop(env_id, None)
         RULE_ENV_PARAMETERS.pop(env_id, None)
-
-
-@pytest.mark.parametrize("env_id", ["SafePointCircle-v0", "SafeHalfCheetahHeight-v1"])
-def test_env_default_shielding_rule_is_deprecated(env_id: str) -> None:
-    env = gym.make(env_id, alpha=0.2).unwrapped
-    with pytest.deprecated_call(match=rf"default_shielding_rule\('{env_id}', env\)"):
-        rule = env.default_shielding_rule()
-    assert type(rule) is SHIELDING_RULES[env_id] and rule.alpha == 0.2
-
-
-def test_env_modules_import_no_shield_code() -> None:
-    """The envs hold physics only: no env module imports :mod:`sppo_sb3.shield` (only the deprecation shim, lazily)."""
-    for path in sorted(ENVS_DIR.glob("*.py")):
-        if path.name == "deprecation.py":
-            continue
-        imported = set()
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.ImportFrom):
-                imported.add(node.module or "")
-            elif isinstance(node, ast.Import):
-                imported.update(alias.name for alias in node.names)
-        assert not {name for name in imported if name.startswith("sppo_sb3.shield")}, path.name
 
 
 @pytest.mark.parametrize("module", ENV_MODULES)

@@ -6,9 +6,6 @@ from collections import deque
 
 import numpy as np
 
-#: where the algorithms log the estimate that drives their update (PDO's and CSC's ``λ``, CPO's constraint value)
-EPISODE_COST_KEY = "train/ep_cost_estimate"
-
 
 class EpisodeCostTracker:
     """Measured episode cost ``J_C`` (undiscounted sum of ``info["cost"]`` per episode), compared with the limit ``d``.

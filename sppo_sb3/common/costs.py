@@ -12,9 +12,7 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 
-COST_KEY = "cost"
-SHAPED_COST_KEY = "shaped_cost"
-"""Where the tasks report the shaped cost ``ĉ`` of eq. 18 (what a learned shielding rule is fitted on)."""
+from sppo_sb3.common.keys import COST_KEY
 
 
 class MissingCostError(KeyError):

@@ -18,8 +18,7 @@ import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sppo_sb3.common.costs import COST_KEY
-from sppo_sb3.common.safety import INTERVENED_KEY
+from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY
 from sppo_sb3.shield.wrapper import ShieldWrapper
 
 DEPLOYMENT_KEYS = ("mean_reward", "mean_violations", "safe_episode_rate", "mean_interventions")

@@ -9,21 +9,18 @@ of :class:`~sppo_sb3.common.cost_tracker.EpisodeCostTracker`. The paper's baseli
 
 from __future__ import annotations
 
-import warnings
 from typing import Any
 
 import numpy as np
 
-from sppo_sb3.common.cost_tracker import EPISODE_COST_KEY, EpisodeCostTracker
+from sppo_sb3.common.cost_tracker import EpisodeCostTracker
+from sppo_sb3.common.keys import LAGRANGE_MULTIPLIER_LOG_KEY
 
 #: the cost limit ``d`` shared by the constrained baselines PDO, CPO and CSC: on the paper's tasks an episode ends at
 #: its first violation, so ``J_C`` is the probability that an episode violates, and ``d = 0.01`` allows one episode
 #: in a hundred. It is the limit SAILR's authors gave their PDO and CSC on these two tasks (the SPPO paper states
 #: none), and the closest a CMDP comes to the "no violation" that the shielded methods are held to.
 DEFAULT_COST_LIMIT = 0.01
-
-#: where every primal-dual algorithm logs its multiplier (beside the episode cost that moved it, ``EPISODE_COST_KEY``)
-LAGRANGE_MULTIPLIER_KEY = "train/lagrange_multiplier"
 
 
 def lagrange_update(lagrange_multiplier: float, episode_cost: float, cost_limit: float, lagrange_lr: float) -> float:
@@ -62,30 +59,14 @@ class LagrangianMixin:
     cost_tracker: EpisodeCostTracker
     logger: Any
 
-    def _init_lagrange(
-        self, cost_limit: float, lagrange_init: float, lagrange_lr: float, initial_lambda: float | None = None
-    ) -> None:
+    def _init_lagrange(self, cost_limit: float, lagrange_init: float, lagrange_lr: float) -> None:
         """Check and store the arguments of the multiplier.
 
         :param cost_limit: the limit ``d >= 0`` on the mean episode cost ``J_C``.
         :param lagrange_init: initial multiplier ``λ_0 >= 0``.
         :param lagrange_lr: dual step size ``η_λ >= 0`` (0 keeps ``λ`` at ``lagrange_init``).
-        :param initial_lambda: deprecated name of ``lagrange_init`` (PDO's before 0.1.0).
-        :raises ValueError: on a negative argument, or when both names of the initial multiplier are given.
+        :raises ValueError: on a negative argument.
         """
-        if initial_lambda is not None:
-            if lagrange_init != 0.0:
-                raise ValueError(
-                    f"Got both lagrange_init={lagrange_init} and its deprecated name initial_lambda={initial_lambda}: "
-                    "pass lagrange_init only."
-                )
-            warnings.warn(
-                "initial_lambda is deprecated and will be removed in the next release: use lagrange_init (the same "
-                "initial Lagrange multiplier, named as in CSC).",
-                DeprecationWarning,
-                stacklevel=3,
-            )
-            lagrange_init = initial_lambda
         for name, value in (("cost_limit", cost_limit), ("lagrange_init", lagrange_init), ("lagrange_lr", lagrange_lr)):
             if value < 0:
                 raise ValueError(f"{name} must be >= 0 (costs and the Lagrange multiplier are non-negative), got {value}.")
@@ -100,6 +81,5 @@ class LagrangianMixin:
         """
         episode_cost = self.cost_tracker.estimate()
         self.lagrange_multiplier = lagrange_update(self.lagrange_multiplier, episode_cost, self.cost_limit, self.lagrange_lr)
-        self.logger.record(LAGRANGE_MULTIPLIER_KEY, self.lagrange_multiplier)
-        self.logger.record(EPISODE_COST_KEY, episode_cost)
+        self.logger.record(LAGRANGE_MULTIPLIER_LOG_KEY, self.lagrange_multiplier)
         return self.lagrange_multiplier

@@ -24,11 +24,15 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
-from sppo_sb3.common.costs import COST_KEY
-
-EPISODE_COST_KEY = "episode_cost"
-EPISODE_VIOLATIONS_KEY = "episode_violations"
-COST_INFO_KEYWORDS: tuple[str, str] = (EPISODE_COST_KEY, EPISODE_VIOLATIONS_KEY)
+from sppo_sb3.common.keys import (
+    COST_INFO_KEYWORDS,
+    COST_KEY,
+    EPISODE_COST_INFO_KEY,
+    EPISODE_VIOLATIONS_INFO_KEY,
+    EVAL_MEAN_COST_LOG_KEY,
+    EVAL_MEAN_VIOLATIONS_LOG_KEY,
+    EVAL_SAFE_EPISODE_RATE_LOG_KEY,
+)
 
 
 class EpisodeCostInfo(gym.Wrapper):
@@ -55,7 +59,7 @@ class EpisodeCostInfo(gym.Wrapper):
         self._cost += cost
         self._violations += int(cost > 0)
         if terminated or truncated:
-            info = {**info, EPISODE_COST_KEY: self._cost, EPISODE_VIOLATIONS_KEY: self._violations}
+            info = {**info, EPISODE_COST_INFO_KEY: self._cost, EPISODE_VIOLATIONS_INFO_KEY: self._violations}
         return obs, reward, terminated, truncated, info
 
 
@@ -132,10 +136,10 @@ class CostEvalCallback(EvalCallback):
             # and EvalCallback dumps it with eval/mean_reward
             self.last_mean_cost = float(np.mean(self._episode_costs))
             self.last_mean_violations = float(np.mean(self._episode_violations))
-            self.logger.record("eval/mean_cost", self.last_mean_cost)
-            self.logger.record("eval/mean_violations", self.last_mean_violations)
+            self.logger.record(EVAL_MEAN_COST_LOG_KEY, self.last_mean_cost)
+            self.logger.record(EVAL_MEAN_VIOLATIONS_LOG_KEY, self.last_mean_violations)
             safe = 100.0 * float(np.mean(np.asarray(self._episode_violations) == 0))
-            self.logger.record("eval/safe_episode_rate", safe)
+            self.logger.record(EVAL_SAFE_EPISODE_RATE_LOG_KEY, safe)
 
     def _on_step(self) -> bool:
         due = self._eval_due()

@@ -13,7 +13,7 @@ cost-aware, written once, with a hook for each thing the algorithms do different
 and the update PDO and SAILR share, PPO on the penalised advantage followed by the cost critic's regression
 (:meth:`~SafeOnPolicyMixin._train_on_penalised_advantage`).
 
-Its parts live in their own modules and stay importable from here: :func:`~sppo_sb3.common.gae.compute_gae`,
+Its parts live in their own modules: :func:`~sppo_sb3.common.gae.compute_gae`,
 :class:`~sppo_sb3.common.cost_buffer.CostRolloutBuffer`, :class:`~sppo_sb3.common.cost_policy.CostActorCriticPolicy`,
 :class:`~sppo_sb3.common.cost_tracker.EpisodeCostTracker` and the Lagrange multiplier of
 :mod:`sppo_sb3.common.lagrange`.
@@ -33,24 +33,14 @@ from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.utils import obs_as_tensor
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from sppo_sb3.common.cost_buffer import CostRolloutBuffer, CostRolloutBufferSamples
+from sppo_sb3.common.cost_buffer import CostRolloutBuffer
 from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
 from sppo_sb3.common.cost_tracker import EpisodeCostTracker
-from sppo_sb3.common.gae import compute_gae
-from sppo_sb3.common.lagrange import lagrange_update, lagrangian_advantage
+from sppo_sb3.common.keys import EPISODE_COST_ESTIMATE_LOG_KEY
+from sppo_sb3.common.lagrange import lagrangian_advantage
 from sppo_sb3.common.safety import SafetyMetrics
 
-__all__ = [
-    "ActionChoice",
-    "CostActorCriticPolicy",
-    "CostRolloutBuffer",
-    "CostRolloutBufferSamples",
-    "EpisodeCostTracker",
-    "SafeOnPolicyMixin",
-    "compute_gae",
-    "lagrange_update",
-    "lagrangian_advantage",
-]
+__all__ = ["ActionChoice", "SafeOnPolicyMixin"]
 
 
 class ActionChoice(NamedTuple):
@@ -344,5 +334,5 @@ class SafeOnPolicyMixin:
     def dump_logs(self, iteration: int = 0) -> None:
         """Write the ``safety/`` figures and the measured episode cost, then SB3's logs."""
         self.safety_metrics.record(self.logger)
-        self.logger.record("safety/ep_cost_estimate", self.cost_tracker.estimate())
+        self.logger.record(EPISODE_COST_ESTIMATE_LOG_KEY, self.cost_tracker.estimate())
         super().dump_logs(iteration)  # type: ignore[misc]

@@ -15,8 +15,7 @@ import numpy as np
 from stable_baselines3.common.logger import Logger
 
 from sppo_sb3.common.costs import costs_from_infos
-
-INTERVENED_KEY = "shield_intervened"
+from sppo_sb3.common.keys import INTERVENED_KEY, SAFETY_LOG_PREFIX
 
 
 class SafetyMetrics:
@@ -127,7 +126,7 @@ class SafetyMetrics:
         """Write the summary to an SB3 logger under ``safety/``."""
         for key, value in self.summary().items():
             if not np.isnan(value):
-                logger.record(f"safety/{key}", value)
+                logger.record(f"{SAFETY_LOG_PREFIX}{key}", value)
 
     def format_summary(self) -> str:
         """One human-readable line, printed at the end of training."""

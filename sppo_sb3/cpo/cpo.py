@@ -39,7 +39,6 @@ from stable_baselines3.common.utils import explained_variance
 
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer
 from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
-from sppo_sb3.common.cost_tracker import EPISODE_COST_KEY
 from sppo_sb3.common.lagrange import DEFAULT_COST_LIMIT
 from sppo_sb3.common.on_policy import SafeOnPolicyMixin
 from sppo_sb3.cpo.policies import MlpPolicy
@@ -340,7 +339,6 @@ class CPO(SafeOnPolicyMixin, TRPO):
         buf = self.rollout_buffer
         self.logger.record("train/cpo_case", CPO_CASES[solution.case])
         self.logger.record("train/constraint_value", c)
-        self.logger.record(EPISODE_COST_KEY, self.cost_tracker.estimate())
         if math.isfinite(solution.nu):
             self.logger.record("train/lagrange_nu", solution.nu)
         self.logger.record("train/is_line_search_success", float(success))

@@ -199,8 +199,6 @@ class CSC(LagrangianMixin, SafeOnPolicyMixin, PPO):
 
     # ----------------------------------------------------------------------------------------------- setup
     def _setup_model(self) -> None:
-        if self.rollout_buffer_class is RolloutBuffer:  # a model saved before CSC ran on the shared loop: SB3's default
-            self.rollout_buffer_class = None
         super()._setup_model()
         self._sync_policy()
         self._cost_buffer = None

@@ -14,8 +14,6 @@ if "SafeHalfCheetahHeight-v1" not in registry:
         entry_point="sppo_sb3.envs.half_cheetah_height:SafeHalfCheetahHeightEnv",
         max_episode_steps=1000,
     )
-if "SafeHalfCheetahHeight-v0" not in registry:  # retired: measured the centre of mass, not the body frame
-    register(id="SafeHalfCheetahHeight-v0", entry_point="sppo_sb3.envs.half_cheetah_height:retired_v0")
 register_dmc_tasks()
 
 __all__ = ["PointParams", "SafePointCircleEnv"]

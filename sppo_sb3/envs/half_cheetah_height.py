@@ -6,9 +6,6 @@ The height is the z of body ``fthigh``'s frame origin (``data.xpos``), what SAIL
 returns (mujoco-py's and gymnasium's ``get_body_com`` read the body frame, not the centre of mass): 0.70 at the
 default reset, the middle of the range.
 
-``SafeHalfCheetahHeight-v0`` measured the thigh's centre of mass (``data.xipos``, 0.575 at reset): a different,
-tighter task. It is retired: making it raises :class:`gymnasium.error.DeprecatedEnv` pointing to v1.
-
 The module holds the physics only; the task's shielding rule (:class:`sppo_sb3.shield.HalfCheetahHeightShieldingRule`)
 is built on it by the shield registry.
 """
@@ -24,20 +21,14 @@ import numpy as np
 from gymnasium.envs.mujoco.half_cheetah_v5 import HalfCheetahEnv
 from gymnasium.utils import EzPickle
 
-from sppo_sb3.common.costs import COST_KEY, shaped_cost
-from sppo_sb3.envs.deprecation import warn_default_shielding_rule
+from sppo_sb3.common.costs import shaped_cost
+from sppo_sb3.common.keys import COST_KEY, HEIGHT_KEY, SHAPED_COST_KEY
 
 #: physics steps per env step (the task's, shared by its shielding rule's rollouts)
 FRAME_SKIP = 5
 MIN_HEIGHT = 0.4
 MAX_HEIGHT = 1.0
 HEIGHT_BODY = "fthigh"
-HEIGHT_KEY = "fthigh_height"
-RETIRED_V0_MESSAGE = (
-    "SafeHalfCheetahHeight-v0 measured the height of fthigh's centre of mass (data.xipos), not the body frame origin "
-    "(data.xpos) that SAILR's task constrains (get_body_com), so it was a different, tighter task. Use "
-    "SafeHalfCheetahHeight-v1, the task as SAILR and the paper define it."
-)
 
 
 def half_cheetah_xml_path() -> str:
@@ -102,15 +93,6 @@ class SafeHalfCheetahHeightEnv(HalfCheetahEnv):
         height = self.fthigh_height()
         unsafe = bool(height_is_unsafe(height))
         info[COST_KEY] = float(unsafe)
-        info["shaped_cost"] = float(shaped_cost(height_distance_to_unsafe(height), self.alpha))
+        info[SHAPED_COST_KEY] = float(shaped_cost(height_distance_to_unsafe(height), self.alpha))
         info[HEIGHT_KEY] = height
         return obs, float(reward), unsafe, truncated, info
-
-    def default_shielding_rule(self) -> Any:
-        """Deprecated: ``sppo_sb3.shield.default_shielding_rule("SafeHalfCheetahHeight-v1", env)`` builds the rule."""
-        return warn_default_shielding_rule(self, "SafeHalfCheetahHeight-v1")
-
-
-def retired_v0(**kwargs: Any) -> gym.Env:
-    """Entry point of ``SafeHalfCheetahHeight-v0``: refuse, saying why, and point to v1."""
-    raise gym.error.DeprecatedEnv(RETIRED_V0_MESSAGE)

@@ -16,8 +16,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from sppo_sb3.common.costs import COST_KEY, shaped_cost
-from sppo_sb3.envs.deprecation import warn_default_shielding_rule
+from sppo_sb3.common.costs import shaped_cost
+from sppo_sb3.common.keys import COST_KEY, SHAPED_COST_KEY
 
 
 @dataclass(frozen=True)
@@ -111,13 +111,9 @@ class SafePointCircleEnv(gym.Env[np.ndarray, np.ndarray]):
         self.state = point_step(self.state, action, self.params)
         unsafe = bool(point_is_unsafe(self.state, self.params))
         dist = point_distance_to_unsafe(self.state, self.params)
-        info = {COST_KEY: float(unsafe), "shaped_cost": float(shaped_cost(dist, self.alpha))}
+        info = {COST_KEY: float(unsafe), SHAPED_COST_KEY: float(shaped_cost(dist, self.alpha))}
         obs = np.clip(self.state, self.observation_space.low, self.observation_space.high).astype(np.float32)
         return obs, reward, unsafe, False, info
-
-    def default_shielding_rule(self) -> Any:
-        """Deprecated: ``sppo_sb3.shield.default_shielding_rule("SafePointCircle-v0", env)`` builds the rule."""
-        return warn_default_shielding_rule(self, "SafePointCircle-v0")
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":

@@ -61,7 +61,6 @@ class PDO(LagrangianMixin, SafeOnPolicyMixin, PPO):
         fraction of episodes allowed to end in one).
     :param lagrange_lr: dual step size ``η_λ >= 0``.
     :param lagrange_init: initial multiplier ``λ_0 >= 0``.
-    :param initial_lambda: deprecated name of ``lagrange_init`` (a ``DeprecationWarning``; removed in the next release).
     :param stats_window_size: episodes averaged in the rollout logs.
     :param tensorboard_log: TensorBoard log folder (``None``: none).
     :param policy_kwargs: policy kwargs (e.g. ``net_arch``, ``cost_net_arch``).
@@ -99,7 +98,6 @@ class PDO(LagrangianMixin, SafeOnPolicyMixin, PPO):
         cost_limit: float = DEFAULT_COST_LIMIT,
         lagrange_lr: float = 0.05,
         lagrange_init: float = 0.0,
-        initial_lambda: float | None = None,
         stats_window_size: int = 100,
         tensorboard_log: str | None = None,
         policy_kwargs: dict[str, Any] | None = None,
@@ -108,7 +106,7 @@ class PDO(LagrangianMixin, SafeOnPolicyMixin, PPO):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        self._init_lagrange(cost_limit, lagrange_init, lagrange_lr, initial_lambda)
+        self._init_lagrange(cost_limit, lagrange_init, lagrange_lr)
         super().__init__(
             policy,
             env,

@@ -36,8 +36,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv, VecEnvWrapper
 
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer
 from sppo_sb3.common.cost_policy import CostActorCriticPolicy
+from sppo_sb3.common.keys import INTERVENED_KEY
 from sppo_sb3.common.on_policy import SafeOnPolicyMixin
-from sppo_sb3.common.safety import INTERVENED_KEY
 from sppo_sb3.sailr.policies import MlpPolicy
 from sppo_sb3.shield import ShieldingRule, ShieldWrapper, resolve_shielding_rule
 from sppo_sb3.shield.persistence import ShieldedLoadMixin

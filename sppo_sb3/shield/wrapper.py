@@ -7,14 +7,15 @@ from typing import Any, Literal, SupportsFloat
 import gymnasium as gym
 import numpy as np
 
-from sppo_sb3.common.safety import INTERVENED_KEY
+from sppo_sb3.common.keys import (
+    ABSORBED_KEY,
+    ADVANTAGE_KEY,
+    ENV_REWARD_KEY,
+    EXECUTED_ACTION_KEY,
+    INTERVENED_KEY,
+    PROPOSED_ACTION_KEY,
+)
 from sppo_sb3.shield.base import ShieldDecision, ShieldingRule
-
-PROPOSED_ACTION_KEY = "proposed_action"
-EXECUTED_ACTION_KEY = "executed_action"
-ADVANTAGE_KEY = "shield_advantage"
-ABSORBED_KEY = "shield_absorbed"
-ENV_REWARD_KEY = "env_reward"
 
 OnIntervention = Literal["execute", "absorb", "takeover"]
 

@@ -17,9 +17,7 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sppo_sb3.common.costs import COST_KEY, SHAPED_COST_KEY
-from sppo_sb3.common.safety import INTERVENED_KEY
-from sppo_sb3.shield.wrapper import PROPOSED_ACTION_KEY
+from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY, PROPOSED_ACTION_KEY, SHAPED_COST_KEY
 
 AbsorbingMode = Literal["terminate", "restart"]
 

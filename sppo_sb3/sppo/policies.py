@@ -172,9 +172,8 @@ class TOLDPolicy(BasePolicy):
     :param latent_dim: size of ``z``.
     :param encoder_dim: encoder hidden width.
     :param hidden_dim: hidden width of the other networks.
-    :param termination: give TOLD its termination head (see :class:`TOLD`). ``SPPO`` sets it from its
-        ``termination_model`` argument; the default False is TD-MPC's model (and what models saved before the head
-        existed hold).
+    :param termination: give TOLD its termination head (see :class:`TOLD`); ``SPPO`` sets it from its
+        ``termination_model`` argument (False: TD-MPC's model).
     :param normalize_images: SB3's policy argument, saved by ``_get_constructor_parameters``; TOLD's inputs are flat
         state vectors, so it must be False.
     """
@@ -187,7 +186,8 @@ class TOLDPolicy(BasePolicy):
         latent_dim: int = 50,
         encoder_dim: int = 256,
         hidden_dim: int = 512,
-        termination: bool = False,
+        *,
+        termination: bool,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
         normalize_images: bool = False,

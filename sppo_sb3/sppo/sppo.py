@@ -22,11 +22,11 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sppo_sb3.common.compile import CompiledFunction, CompileMode, check_compile_mode, should_compile
 from sppo_sb3.common.costs import costs_from_infos
-from sppo_sb3.common.safety import INTERVENED_KEY, SafetyMetrics
+from sppo_sb3.common.keys import INTERVENED_KEY, PROPOSED_ACTION_KEY
+from sppo_sb3.common.safety import SafetyMetrics
 from sppo_sb3.shield import ShieldingRule, resolve_shielding_rule
 from sppo_sb3.shield.learned import LearnedCostCriticRule, definition2_step_costs
 from sppo_sb3.shield.persistence import ShieldedLoadMixin
-from sppo_sb3.shield.wrapper import PROPOSED_ACTION_KEY
 from sppo_sb3.sppo.buffers import AbsorbingMode, ShieldedReplayBuffer
 from sppo_sb3.sppo.optim import init_optimizer_state, supports_tensor_step
 from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
