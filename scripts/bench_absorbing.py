@@ -27,7 +27,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 import sppo_sb3  # noqa: F401  (registers the task)
 from sppo_sb3 import SAILR, SPPO
-from sppo_sb3.common.evaluation import evaluate_deployment
+from sppo_sb3.evaluation import evaluate_deployment
 from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY
 
 ENV_ID = "SafePointCircle-v0"

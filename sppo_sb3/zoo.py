@@ -45,8 +45,8 @@ from torch import nn
 
 import sppo_sb3  # noqa: F401  (registers the tasks with gymnasium)
 from sppo_sb3.algorithms import ALGORITHMS
-from sppo_sb3.common.evaluation import evaluate_deployment
 from sppo_sb3.common.monitor import CostEvalCallback, cost_monitored_make_vec_env
+from sppo_sb3.evaluation import evaluate_deployment
 
 #: algorithms that could not be imported, with the reason
 UNAVAILABLE: dict[str, str] = {}

@@ -15,7 +15,7 @@ import torch as th
 from stable_baselines3.common.env_util import make_vec_env
 
 from sppo_sb3 import SPPO
-from sppo_sb3.common.compile import CompiledFunction, should_compile
+from sppo_sb3.sppo.compile import CompiledFunction, should_compile
 from sppo_sb3.sppo.optim import init_optimizer_state
 from sppo_sb3.sppo.planner import MPPIConfig, draw_noise, mppi
 from sppo_sb3.sppo.policies import TOLDPolicy

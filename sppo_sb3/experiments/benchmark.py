@@ -21,7 +21,8 @@ from typing import Any
 
 from sppo_sb3.experiments import grid, layout, plan
 from sppo_sb3.experiments.configs import REPO_HYPERPARAMS_DIR
-from sppo_sb3.experiments.runner import RunSpec, dry_run_command, finalize, import_ray, progress_line, run_local, run_ray
+from sppo_sb3.experiments.runner import dry_run_command, finalize, import_ray, progress_line, run_local, run_ray
+from sppo_sb3.experiments.spec import RunSpec
 
 DESCRIPTION = "Run the paper's comparison grid (algorithms × tasks × seeds) through the package's own training entry point."
 

@@ -9,7 +9,7 @@ from sppo_sb3.algorithms import ALGORITHMS
 from sppo_sb3.envs.dmc import FIG7_DMC_TASKS, dmc_id
 from sppo_sb3.experiments import layout
 from sppo_sb3.experiments.configs import resolve_config
-from sppo_sb3.experiments.runner import RunSpec
+from sppo_sb3.experiments.spec import RunSpec
 
 #: the paper's comparison: the package's algorithms (configured by ``--hyperparams-dir/ALGO.yml``)
 OUR_ALGOS: tuple[str, ...] = tuple(ALGORITHMS)

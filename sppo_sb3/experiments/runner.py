@@ -16,48 +16,18 @@ import tempfile
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
 from sppo_sb3.experiments import layout
+from sppo_sb3.experiments.spec import RunSpec
 from sppo_sb3.experiments.summary import model_safety_summary, model_timesteps, read_monitor_curve, summarize
 
 #: largest ``train.log`` a Ray task sends back to the driver (its tail)
 MAX_REMOTE_LOG_CHARS = 200_000
 #: what reports a finished run to the driver: ``report(spec, result)``
-Report = Callable[["RunSpec", dict[str, Any]], None]
-
-
-@dataclass
-class RunSpec:
-    """One run of the grid.
-
-    :param task: gymnasium id of the task.
-    :param algo: rl-zoo3 name of the algorithm.
-    :param seed: random seed.
-    :param run_dir: the run's output folder (``OUT/<task>/<algo>/seed_<s>``), as seen by the driver.
-    :param steps: env steps (``-n``); ``None``: the hyperparameter file's ``n_timesteps``.
-    :param config_text: the yml given to ``-conf`` (written into the run folder); ``None``: rl-zoo3's own.
-    :param device: PyTorch device (``--device`` of the train command).
-    :param zoo_args: extra arguments for the train command (after the runner's own, so they win).
-    :param last_n: number of final episodes averaged into the reported return.
-    """
-
-    task: str
-    algo: str
-    seed: int
-    run_dir: str
-    steps: int | None = None
-    config_text: str | None = None
-    device: str = "auto"
-    zoo_args: list[str] = field(default_factory=list)
-    last_n: int = 10
-
-    @property
-    def label(self) -> str:
-        """``task / algo / seed`` for progress lines."""
-        return f"{self.task} / {self.algo} / seed {self.seed}"
+Report = Callable[[RunSpec, dict[str, Any]], None]
 
 
 def train_command(spec: RunSpec, zoo_dir: Path, config_path: Path | None, python: str | None = None) -> list[str]:

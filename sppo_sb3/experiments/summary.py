@@ -12,15 +12,13 @@ import shlex
 import zipfile
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from sppo_sb3.experiments.layout import CURVE_COLUMNS
-
-if TYPE_CHECKING:
-    from sppo_sb3.experiments.runner import RunSpec
+from sppo_sb3.experiments.spec import RunSpec
 
 
 def read_monitor_curve(zoo_dir: Path) -> pd.DataFrame:

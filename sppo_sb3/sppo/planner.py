@@ -19,7 +19,7 @@ from typing import NamedTuple
 import torch as th
 from torch import nn
 
-from sppo_sb3.common.compile import CompiledFunction
+from sppo_sb3.sppo.compile import CompiledFunction
 from sppo_sb3.sppo.policies import TOLD
 
 

@@ -20,14 +20,15 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Rollout
 from stable_baselines3.common.utils import is_vectorized_observation, should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv
 
-from sppo_sb3.common.compile import CompiledFunction, CompileMode, check_compile_mode, should_compile
 from sppo_sb3.common.costs import costs_from_infos
 from sppo_sb3.common.keys import INTERVENED_KEY, PROPOSED_ACTION_KEY
 from sppo_sb3.common.safety import SafetyMetrics
-from sppo_sb3.shield import ShieldingRule, resolve_shielding_rule
+from sppo_sb3.shield.base import ShieldingRule
 from sppo_sb3.shield.learned import LearnedCostCriticRule, definition2_step_costs
 from sppo_sb3.shield.persistence import ShieldedLoadMixin
+from sppo_sb3.shield.registry import resolve_shielding_rule
 from sppo_sb3.sppo.buffers import AbsorbingMode, ShieldedReplayBuffer
+from sppo_sb3.sppo.compile import CompiledFunction, CompileMode, check_compile_mode, should_compile
 from sppo_sb3.sppo.optim import init_optimizer_state, supports_tensor_step
 from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
 from sppo_sb3.sppo.policies import TOLDPolicy
@@ -102,7 +103,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         ``False`` (SB3's default) is accepted.
     :param compile: compile the planner (all ``J`` iterations of Alg. 2) and the whole TOPO update (Alg. 3) with
         ``torch.compile`` (Inductor on CPU, CUDA graphs on CUDA): ``True``, ``False`` or ``"auto"`` (compile where
-        ``torch.compile`` is available; see :func:`~sppo_sb3.common.compile.should_compile`). Each planning horizon
+        ``torch.compile`` is available; see :func:`~sppo_sb3.sppo.compile.should_compile`). Each planning horizon
         of the schedule and each number of envs is compiled once, on first use: a run compiles ``H`` planner graphs
         for training (one per horizon; more for evaluation VecEnvs of other sizes) and one update graph, see
         :attr:`compile_stats`. The eager code is the reference and is used, after one warning, if compiling fails.

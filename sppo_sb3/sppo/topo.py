@@ -3,7 +3,7 @@
 Only the first state of a sequence is encoded; the rest is rolled in latent space by ``d``. Masked steps (past an
 episode end) contribute nothing. Only the latent roll is sequential: rewards, values and TD targets of all ``H`` steps
 are computed in one batched call each. The whole update — both losses, both gradients, clipping, both Adam steps and
-the EMA target — is tensor code without host syncs, so that :class:`~sppo_sb3.common.compile.CompiledFunction` can
+the EMA target — is tensor code without host syncs, so that :class:`~sppo_sb3.sppo.compile.CompiledFunction` can
 compile it into one graph; its eager run is the reference.
 """
 
