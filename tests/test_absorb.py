@@ -11,8 +11,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3 import PDO, SPPO
-from sppo_sb3.evaluation import evaluate_deployment
 from sppo_sb3.envs.point_circle import PointParams, point_is_unsafe, point_step
+from sppo_sb3.evaluation import evaluate_deployment
 from sppo_sb3.shield import LearnedCostCriticRule, PointCircleShieldingRule, ShieldWrapper
 from sppo_sb3.shield.bounds import adoptability_gap, discounted_violation, theorem1_bound
 from sppo_sb3.sppo.buffers import SequenceSamples

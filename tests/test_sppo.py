@@ -6,12 +6,15 @@ import contextlib
 import io
 import zipfile
 from collections.abc import Iterator
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
+from stable_baselines3 import SAC
 from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.logger import KVWriter, Logger
 
 from sppo_sb3 import SPPO
 from sppo_sb3.common.costs import MissingCostError
@@ -294,10 +297,34 @@ def test_policy_save_load_and_sb3_default_arguments(tmp_path):
         tiny_sppo(optimize_memory_usage=True)
 
 
-def test_predict_checks_observations_as_sb3_does():
+def test_predict_takes_what_sb3_takes():
+    """Float64 batches and a plain tuple of floats are observations, as in SB3's ``predict``."""
     model = tiny_sppo()
-    with pytest.raises(ValueError, match="Unexpected observation shape"):
-        model.predict(np.zeros(5, dtype=np.float32))
-    with pytest.raises(ValueError, match="mixing the Gym API"):
-        model.predict((np.zeros(4, dtype=np.float32), {}))
     assert model.predict(np.zeros((3, 4), dtype=np.float64))[0].shape == (3, 2)
+    assert model.predict((0.0, 0.0, 0.0, 0.0))[0].shape == (2,)
+
+
+class RecordDumps(KVWriter):
+    """Every logger dump of a run."""
+
+    def __init__(self) -> None:
+        self.dumps: list[dict[str, Any]] = []
+
+    def write(self, key_values: dict[str, Any], key_excluded: dict[str, Any], step: int = 0) -> None:
+        self.dumps.append(dict(key_values))
+
+
+@pytest.mark.parametrize("train_freq", [4, (1, "episode")])
+def test_n_updates_is_logged_as_sac_logs_it(train_freq) -> None:
+    """``train/n_updates`` in every dump, with ``gradient_steps=-1``, is what SB3's SAC logs in the same run."""
+    logged = {}
+    schedule = dict(learning_starts=50, gradient_steps=-1, train_freq=train_freq, batch_size=8, seed=0)
+    sac_kwargs = {**schedule, "policy_kwargs": dict(net_arch=[8])}
+    for algo, kwargs in ((SPPO, {**TINY, **schedule, "shield": None}), (SAC, sac_kwargs)):
+        recorder = RecordDumps()
+        model = algo("TOLDPolicy" if algo is SPPO else "MlpPolicy", "Pendulum-v1", **kwargs)
+        model.set_logger(Logger(None, [recorder]))
+        model.learn(450, log_interval=1)
+        logged[algo] = [dump.get("train/n_updates") for dump in recorder.dumps]
+    assert logged[SPPO] == logged[SAC]
+    assert logged[SPPO][-1] is not None and logged[SPPO][-1] > 0

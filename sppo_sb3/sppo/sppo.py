@@ -17,11 +17,11 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, RolloutReturn, Schedule, TrainFreq
-from stable_baselines3.common.utils import is_vectorized_observation, should_collect_more_steps
+from stable_baselines3.common.utils import should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv
 
 from sppo_sb3.common.costs import costs_from_infos
-from sppo_sb3.common.keys import INTERVENED_KEY, PROPOSED_ACTION_KEY
+from sppo_sb3.common.keys import INTERVENED_KEY, N_UPDATES_LOG_KEY, PROPOSED_ACTION_KEY
 from sppo_sb3.common.safety import SafetyMetrics
 from sppo_sb3.shield.base import ShieldingRule
 from sppo_sb3.shield.learned import LearnedCostCriticRule, definition2_step_costs
@@ -380,6 +380,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
             stats = self._topo_update(*models, *optimizers, batch, noise, lr, ema, self.topo_config)
             self._train_stats += stats
             self._train_stats_count += 1
+        self.logger.record(N_UPDATES_LOG_KEY, self._n_updates, exclude="tensorboard")  # as SB3's off-policy algorithms
         if self.refine_shield:
             self._refine_shield(gradient_steps, batch_size)
         policy.set_training_mode(False)
@@ -400,7 +401,6 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
 
     def _record_train_stats(self) -> None:
         """Means of the TOPO statistics since the last dump (one device-to-host copy per log interval)."""
-        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
         self.logger.record("train/horizon", self.planner_config.horizon_at(self.num_timesteps))
         self.logger.record("train/min_std", self.planner_config.min_std_at(self.num_timesteps))
         if self._train_stats_count:
@@ -458,15 +458,13 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         return (actions if vectorized else actions[0]), new_state
 
     def _checked_observation(self, observation: Any) -> tuple[np.ndarray, bool]:
-        """``(n_envs, obs_dim)`` float32 observations and whether they were batched, checked as SB3's ``predict`` does."""
-        if isinstance(observation, tuple) and len(observation) == 2 and isinstance(observation[1], dict):
-            raise ValueError(
-                "You have passed a tuple to predict() instead of a NumPy array: you are probably mixing the Gym API "
-                "with SB3's VecEnv API: `obs, info = env.reset()` (Gym) vs `obs = vec_env.reset()` (VecEnv)."
-            )
-        obs = np.asarray(observation, dtype=np.float32)
-        vectorized = is_vectorized_observation(obs, self.observation_space)  # raises on a wrong shape, with SB3's message
-        return obs.reshape(-1, *self.observation_space.shape), vectorized
+        """``(n_envs, obs_dim)`` float32 observations and whether they were batched, checked by SB3's own ``predict``
+        path, with its messages: ``BasePolicy.predict``'s check for a Gym ``(obs, info)`` tuple, then
+        ``obs_to_tensor``'s for the shape."""
+        if isinstance(observation, tuple):
+            self.policy.predict(observation)  # SB3's check of the Gym/VecEnv API mix-up raises its own message
+        obs_tensor, vectorized = self.policy.obs_to_tensor(observation)
+        return obs_tensor.cpu().numpy().astype(np.float32, copy=False), vectorized
 
     def _warm_start_from_state(
         self, state: tuple[np.ndarray, ...] | None, episode_start: np.ndarray | None, n_envs: int
