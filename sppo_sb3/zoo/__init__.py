@@ -26,27 +26,25 @@ from __future__ import annotations
 import json
 import os
 import warnings
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ClassVar
 
 import gymnasium as gym
-import numpy as np
 import optuna
 import rl_zoo3.exp_manager as zoo_exp_manager
-import torch as th
 import yaml
 from rl_zoo3 import hyperparams_opt as zoo_opt
 from rl_zoo3.callbacks import TrialEvalCallback
 from rl_zoo3.exp_manager import ExperimentManager
 from rl_zoo3.utils import ALGOS as ZOO_ALGOS
 from stable_baselines3.common.base_class import BaseAlgorithm
-from torch import nn
 
 import sppo_sb3  # noqa: F401  (registers the tasks with gymnasium)
 from sppo_sb3.algorithms import ALGORITHMS
 from sppo_sb3.common.evaluation import evaluate_deployment
 from sppo_sb3.common.monitor import CostEvalCallback, cost_monitored_make_vec_env
+from sppo_sb3.zoo.hyperparams import eval_kwargs_strings, eval_yml_string, merge_kwargs
+from sppo_sb3.zoo.samplers import TOLD_SIZES, convert_sppo_params, sample_sppo_params, search_spaces
 
 #: algorithms that could not be imported, with the reason
 UNAVAILABLE: dict[str, str] = {}
@@ -54,8 +52,24 @@ UNAVAILABLE: dict[str, str] = {}
 BUDGET_ENV_VAR = "SPPO_VIOLATION_BUDGET"
 PENALTY_ENV_VAR = "SPPO_VIOLATION_PENALTY"
 DEFAULT_DEPLOYMENT_EPISODES = 5
-#: ``*_kwargs`` keys that rl-zoo3 handles itself (the others are evaluated when given as strings)
-_ZOO_KWARGS_KEYS = frozenset({"policy_kwargs", "replay_buffer_kwargs", "monitor_kwargs", "env_kwargs", "normalize_kwargs"})
+__all__ = [
+    "BUDGET_ENV_VAR",
+    "DEFAULT_DEPLOYMENT_EPISODES",
+    "PENALTY_ENV_VAR",
+    "TOLD_SIZES",
+    "UNAVAILABLE",
+    "SafeExperimentManager",
+    "SafeTrialEvalCallback",
+    "algo_classes",
+    "convert_sppo_params",
+    "eval_kwargs_strings",
+    "eval_yml_string",
+    "install",
+    "merge_kwargs",
+    "register_algos",
+    "register_samplers",
+    "sample_sppo_params",
+]
 
 
 # ---------------------------------------------------------------------------------------------------- algorithms
@@ -83,123 +97,22 @@ def register_algos() -> dict[str, type[BaseAlgorithm]]:
     return classes
 
 
-# ---------------------------------------------------------------------------------------------------- samplers
-TOLD_SIZES: dict[str, dict[str, int]] = {
-    "tiny": {"latent_dim": 32, "encoder_dim": 64, "hidden_dim": 128},
-    "small": {"latent_dim": 50, "encoder_dim": 128, "hidden_dim": 256},
-    "tdmpc": {"latent_dim": 50, "encoder_dim": 256, "hidden_dim": 512},
-}
-
-
-def convert_sppo_params(sampled_params: dict[str, Any]) -> dict[str, Any]:
-    """SPPO constructor arguments from the raw values of :func:`sample_sppo_params` (a trial's ``params``).
-
-    :param sampled_params: the trial's parameters.
-    """
-    p = dict(sampled_params)
-    num_samples = 2 ** p.pop("num_samples_pow")
-    planner_kwargs = {
-        "num_samples": num_samples,
-        "num_elites": min(2 ** p.pop("num_elites_pow"), num_samples // 2),
-        "iterations": p.pop("iterations"),
-        "temperature": p.pop("temperature"),
-        "policy_fraction": p.pop("policy_fraction"),
-    }
-    return {
-        "learning_rate": p.pop("learning_rate"),
-        "batch_size": 2 ** p.pop("batch_size_pow"),
-        "gamma": 1.0 - p.pop("one_minus_gamma"),
-        "tau": p.pop("tau"),
-        "horizon": p.pop("horizon"),
-        "planner_kwargs": planner_kwargs,
-        "policy_kwargs": dict(TOLD_SIZES[p.pop("told_size")]),
-        **p,
-    }
-
-
-def sample_sppo_params(trial: optuna.Trial, n_actions: int, n_envs: int, additional_args: dict[str, Any]) -> dict[str, Any]:
-    """Optuna search space of SPPO (TOPO learning rate, batch, horizon, EMA; MPPI sizes; TOLD size).
-
-    Signature of rl-zoo3's samplers. ``planner_kwargs`` and ``policy_kwargs`` are merged into the yml's by
-    :class:`SafeExperimentManager` (fields that are not searched, e.g. ``horizon_warmup``, keep their yml value).
-
-    :param trial: the Optuna trial.
-    :param n_actions: action dimension (unused).
-    :param n_envs: number of envs (unused).
-    :param additional_args: rl-zoo3's extra arguments (unused).
-    """
-    return convert_sppo_params(
-        {
-            "learning_rate": trial.suggest_float("learning_rate", 1e-4, 3e-3, log=True),
-            "batch_size_pow": trial.suggest_int("batch_size_pow", 6, 9),
-            "one_minus_gamma": trial.suggest_float("one_minus_gamma", 0.002, 0.05, log=True),
-            "tau": trial.suggest_float("tau", 0.002, 0.05, log=True),
-            "horizon": trial.suggest_int("horizon", 3, 7),
-            "num_samples_pow": trial.suggest_int("num_samples_pow", 6, 9),
-            "num_elites_pow": trial.suggest_int("num_elites_pow", 3, 6),
-            "iterations": trial.suggest_int("iterations", 2, 6),
-            "temperature": trial.suggest_float("temperature", 0.1, 2.0, log=True),
-            "policy_fraction": trial.suggest_categorical("policy_fraction", [0.05, 0.1, 0.25]),
-            "told_size": trial.suggest_categorical("told_size", list(TOLD_SIZES)),
-        }
-    )
-
-
 def register_samplers(classes: dict[str, type[BaseAlgorithm]] | None = None) -> None:
     """Register each algorithm's Optuna search space (:attr:`~sppo_sb3.algorithms.Algorithm.sampler`).
 
-    SPPO has its own (:func:`sample_sppo_params`); PDO, SAILR and CSC use rl-zoo3's PPO sampler, CPO its TRPO sampler.
-    Entries already present (a user's own sampler) are kept.
+    SPPO has its own (:func:`~sppo_sb3.zoo.samplers.sample_sppo_params`); PDO, SAILR and CSC use rl-zoo3's PPO
+    sampler, CPO its TRPO sampler. Entries already present (a user's own sampler) are kept.
 
     :param classes: the available algorithms (default: all that import).
     """
     opt = zoo_opt  # rl-zoo3 keeps its samplers in hyperparams_opt
     classes = algo_classes() if classes is None else classes
-    search_spaces: dict[str, tuple[Callable[..., dict[str, Any]], Callable[[dict[str, Any]], dict[str, Any]]]] = {
-        "sppo": (sample_sppo_params, convert_sppo_params),
-        "ppo": (opt.sample_ppo_params, opt.convert_onpolicy_params),
-        "trpo": (opt.sample_trpo_params, opt.convert_onpolicy_params),
-    }
+    spaces = search_spaces()
     for name, algo in ALGORITHMS.items():
         if name in classes and algo.sampler is not None:
-            sampler, converter = search_spaces[algo.sampler]
+            sampler, converter = spaces[algo.sampler]
             opt.HYPERPARAMS_SAMPLER.setdefault(name, sampler)  # type: ignore[arg-type]
             opt.HYPERPARAMS_CONVERTER.setdefault(name, converter)  # type: ignore[arg-type]
-
-
-# ---------------------------------------------------------------------------------------------------- hyperparams
-def eval_yml_string(source: str) -> Any:
-    """Evaluate a yml string as rl-zoo3 does (``nn``, ``th`` and ``np`` in scope: ``activation_fn=nn.ReLU``)."""
-    return eval(source, {"nn": nn, "th": th, "np": np})  # same trust model as rl-zoo3's own eval of policy_kwargs
-
-
-def eval_kwargs_strings(hyperparams: dict[str, Any]) -> dict[str, Any]:
-    """Evaluate the ``*_kwargs`` values given as Python strings (``planner_kwargs: "dict(num_samples=64)"``).
-
-    rl-zoo3 does this for ``policy_kwargs`` and ``replay_buffer_kwargs`` only; the package's algorithms have more
-    (``planner_kwargs``, ``topo_kwargs``). Done in place; returns ``hyperparams``.
-
-    :param hyperparams: one yml entry (or its processed form).
-    """
-    for key, value in list(hyperparams.items()):
-        if key.endswith("_kwargs") and key not in _ZOO_KWARGS_KEYS and isinstance(value, str):
-            hyperparams[key] = eval_yml_string(value)
-    return hyperparams
-
-
-def merge_kwargs(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]:
-    """``{**base, **update}`` where ``*_kwargs`` dicts are merged one level deep instead of replaced.
-
-    :param base: e.g. the yml's hyperparameters.
-    :param update: e.g. a trial's sampled hyperparameters.
-    """
-    merged = dict(base)
-    for key, value in update.items():
-        old = merged.get(key)
-        if isinstance(old, str) and key.endswith("_kwargs"):
-            old = eval_yml_string(old)
-        merged[key] = {**old, **value} if isinstance(old, dict) and isinstance(value, dict) else value
-    return merged
 
 
 def _env_float(name: str) -> float | None:
@@ -207,7 +120,6 @@ def _env_float(name: str) -> float | None:
     return float(value) if value else None
 
 
-# ---------------------------------------------------------------------------------------------------- experiment
 class SafeTrialEvalCallback(CostEvalCallback, TrialEvalCallback):
     """rl-zoo3's ``TrialEvalCallback`` with evaluation cost and the violation budget of the study.
 
