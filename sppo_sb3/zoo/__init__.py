@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import json
 import os
-import warnings
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -34,24 +33,25 @@ import optuna
 import rl_zoo3.exp_manager as zoo_exp_manager
 import yaml
 from rl_zoo3 import hyperparams_opt as zoo_opt
-from rl_zoo3.callbacks import TrialEvalCallback
 from rl_zoo3.exp_manager import ExperimentManager
-from rl_zoo3.utils import ALGOS as ZOO_ALGOS
 from stable_baselines3.common.base_class import BaseAlgorithm
 
 import sppo_sb3  # noqa: F401  (registers the tasks with gymnasium)
-from sppo_sb3.algorithms import ALGORITHMS
 from sppo_sb3.common.evaluation import evaluate_deployment
 from sppo_sb3.common.monitor import CostEvalCallback, cost_monitored_make_vec_env
+from sppo_sb3.zoo.budget import (
+    BUDGET_ENV_VAR,
+    PENALTY_ENV_VAR,
+    SafeTrialEvalCallback,
+    penalised_objective,
+    resolve_violation_budget,
+)
 from sppo_sb3.zoo.hyperparams import eval_kwargs_strings, eval_yml_string, merge_kwargs
-from sppo_sb3.zoo.samplers import TOLD_SIZES, convert_sppo_params, sample_sppo_params, search_spaces
+from sppo_sb3.zoo.registration import UNAVAILABLE, algo_classes, register_algos, register_samplers
+from sppo_sb3.zoo.samplers import TOLD_SIZES, convert_sppo_params, sample_sppo_params
 
-#: algorithms that could not be imported, with the reason
-UNAVAILABLE: dict[str, str] = {}
-
-BUDGET_ENV_VAR = "SPPO_VIOLATION_BUDGET"
-PENALTY_ENV_VAR = "SPPO_VIOLATION_PENALTY"
 DEFAULT_DEPLOYMENT_EPISODES = 5
+
 __all__ = [
     "BUDGET_ENV_VAR",
     "DEFAULT_DEPLOYMENT_EPISODES",
@@ -72,99 +72,13 @@ __all__ = [
 ]
 
 
-# ---------------------------------------------------------------------------------------------------- algorithms
-def algo_classes() -> dict[str, type[BaseAlgorithm]]:
-    """The package's algorithms that import, by zoo name (the others go to :data:`UNAVAILABLE`, with a warning)."""
-    classes: dict[str, type[BaseAlgorithm]] = {}
-    for name, algo in ALGORITHMS.items():
-        try:
-            classes[name] = algo.load_class()
-            UNAVAILABLE.pop(name, None)
-        except Exception as exc:  # a module being written must not break the other algorithms
-            UNAVAILABLE[name] = f"{type(exc).__name__}: {exc}"
-            warnings.warn(f"sppo_sb3.zoo: algorithm {name!r} is not available ({UNAVAILABLE[name]})", stacklevel=2)
-    return classes
-
-
-def register_algos() -> dict[str, type[BaseAlgorithm]]:
-    """Add the package's algorithms to rl-zoo3's ``ALGOS`` and their samplers to the zoo's Optuna tables.
-
-    :return: the registered classes, by zoo name.
-    """
-    classes = algo_classes()
-    ZOO_ALGOS.update(classes)
-    register_samplers(classes)
-    return classes
-
-
-def register_samplers(classes: dict[str, type[BaseAlgorithm]] | None = None) -> None:
-    """Register each algorithm's Optuna search space (:attr:`~sppo_sb3.algorithms.Algorithm.sampler`).
-
-    SPPO has its own (:func:`~sppo_sb3.zoo.samplers.sample_sppo_params`); PDO, SAILR and CSC use rl-zoo3's PPO
-    sampler, CPO its TRPO sampler. Entries already present (a user's own sampler) are kept.
-
-    :param classes: the available algorithms (default: all that import).
-    """
-    opt = zoo_opt  # rl-zoo3 keeps its samplers in hyperparams_opt
-    classes = algo_classes() if classes is None else classes
-    spaces = search_spaces()
-    for name, algo in ALGORITHMS.items():
-        if name in classes and algo.sampler is not None:
-            sampler, converter = spaces[algo.sampler]
-            opt.HYPERPARAMS_SAMPLER.setdefault(name, sampler)  # type: ignore[arg-type]
-            opt.HYPERPARAMS_CONVERTER.setdefault(name, converter)  # type: ignore[arg-type]
-
-
-def _env_float(name: str) -> float | None:
-    value = os.environ.get(name, "").strip()
-    return float(value) if value else None
-
-
-class SafeTrialEvalCallback(CostEvalCallback, TrialEvalCallback):
-    """rl-zoo3's ``TrialEvalCallback`` with evaluation cost and the violation budget of the study.
-
-    Reads the budget from the trial's user attributes (``violation_budget``, ``violation_budget_mode``) and, in
-    ``"prune"`` mode, stops the trial as soon as the model's cumulative training violations exceed it.
-    """
-
-    def _init_callback(self) -> None:
-        super()._init_callback()
-        attrs = self.trial.user_attrs
-        self.violation_budget: float | None = attrs.get("violation_budget")
-        self.prune_on_budget = attrs.get("violation_budget_mode") == "prune"
-
-    def _violations(self) -> float | None:
-        metrics = getattr(self.model, "safety_metrics", None)
-        return float(metrics.violations) if metrics is not None else None
-
-    def _on_step(self) -> bool:
-        if not super()._on_step():
-            return False
-        violations = self._violations()
-        budget = self.violation_budget
-        if self.prune_on_budget and budget is not None and violations is not None and violations > budget:
-            self.trial.set_user_attr("budget_exceeded_at", int(self.num_timesteps))
-            self.is_pruned = True
-            return False
-        return True
-
-    def _on_training_end(self) -> None:
-        metrics = getattr(self.model, "safety_metrics", None)
-        if metrics is not None:
-            summary = metrics.summary()
-            self.trial.set_user_attr("cumulative_violations", summary["cumulative_violations"])
-            self.trial.set_user_attr("safety_rate", summary["safety_rate"])
-            self.trial.set_user_attr("episodes", summary["episodes"])
-        self.trial.set_user_attr("eval_mean_reward", float(self.last_mean_reward))
-        self.trial.set_user_attr("eval_mean_cost", float(self.last_mean_cost))
-
-
 class SafeExperimentManager(ExperimentManager):
-    """rl-zoo3's ``ExperimentManager`` with the safety outputs and violation budget described in the module doc.
+    """rl-zoo3's ``ExperimentManager`` with the safety outputs and violation budget described in :mod:`sppo_sb3.zoo`.
 
     :cvar violation_budget: cumulative training violations allowed per trial (``None``: ``SPPO_VIOLATION_BUDGET``).
     :cvar violation_penalty: objective penalty per violation above the budget (``None``:
         ``SPPO_VIOLATION_PENALTY``; unset: over-budget trials are pruned).
+    :cvar deployment_episodes: episodes of each deployment evaluated after training (0: none).
     """
 
     violation_budget: ClassVar[float | None] = None
@@ -173,10 +87,7 @@ class SafeExperimentManager(ExperimentManager):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self.budget = self.violation_budget if self.violation_budget is not None else _env_float(BUDGET_ENV_VAR)
-        self.penalty = self.violation_penalty if self.violation_penalty is not None else _env_float(PENALTY_ENV_VAR)
-        if self.penalty is not None and self.budget is None:
-            self.budget = 0.0
+        self.budget, self.penalty = resolve_violation_budget(self.violation_budget, self.violation_penalty)
         self.safety_summary: dict[str, float] | None = None
 
     # ---- hyperparameters
@@ -205,6 +116,7 @@ class SafeExperimentManager(ExperimentManager):
             sampled = sampler(trial, *args)
             return {key: value for key, value in merge_kwargs(base, sampled).items() if key in sampled}
 
+        # patch (for this search only): rl-zoo3's sampler of the algorithm, so that trials keep the yml's unsearched *_kwargs
         opt.HYPERPARAMS_SAMPLER[self.algo] = merged_sampler  # type: ignore[assignment]
         try:
             super().hyperparameters_optimization()
@@ -217,10 +129,7 @@ class SafeExperimentManager(ExperimentManager):
             trial.set_user_attr("violation_budget", self.budget)
             trial.set_user_attr("violation_budget_mode", "prune" if self.penalty is None else "penalty")
         value = float(super().objective(trial))
-        violations = trial.user_attrs.get("cumulative_violations")
-        if self.penalty is not None and self.budget is not None and violations is not None:
-            value -= self.penalty * max(0.0, float(violations) - self.budget)
-        return value
+        return penalised_objective(value, trial.user_attrs.get("cumulative_violations"), self.budget, self.penalty)
 
     # ---- training
     def learn(self, model: BaseAlgorithm) -> None:
@@ -232,6 +141,8 @@ class SafeExperimentManager(ExperimentManager):
 
         The summary holds the paper's training-safety metrics (Section V-B-2: cumulative constraint violations,
         safety rate) with the episodes' return and the shield's interventions.
+
+        :param model: the trained model.
         """
         metrics = getattr(model, "safety_metrics", None)
         print(f"========== Safety summary: {self.algo} on {self.env_name.gym_id} ==========")
@@ -261,6 +172,9 @@ class SafeExperimentManager(ExperimentManager):
         Runs :attr:`deployment_episodes` deterministic episodes of each deployment on a fresh env of the task (none when
         0). A model trained under ``VecNormalize`` sees the observations normalised with its final statistics. Also
         logged (TensorBoard) under ``deployment_eval/`` and ``deployment_eval_unshielded/`` at the final step.
+
+        :param model: the trained model.
+        :return: the metrics of each deployment, by name (``eval``, ``eval_unshielded``); empty when none is run.
         """
         episodes = self.deployment_episodes
         if episodes <= 0:
@@ -293,11 +207,12 @@ def install(
 
     Replaces, in rl-zoo3's ``exp_manager`` module, ``make_vec_env`` by
     :func:`~sppo_sb3.common.monitor.cost_monitored_make_vec_env`, ``EvalCallback`` by
-    :class:`~sppo_sb3.common.monitor.CostEvalCallback` and ``TrialEvalCallback`` by ``SafeTrialEvalCallback`` (each a
-    superset of the original), and rl-zoo3's train ``ExperimentManager`` by :class:`SafeExperimentManager`.
+    :class:`~sppo_sb3.common.monitor.CostEvalCallback` and ``TrialEvalCallback`` by
+    :class:`~sppo_sb3.zoo.budget.SafeTrialEvalCallback` (each a superset of the original), and rl-zoo3's train
+    ``ExperimentManager`` by :class:`~sppo_sb3.zoo.experiment.SafeExperimentManager`.
 
-    :param violation_budget: see the module docstring (``None``: the ``SPPO_VIOLATION_BUDGET`` variable).
-    :param violation_penalty: see the module docstring (``None``: the ``SPPO_VIOLATION_PENALTY`` variable).
+    :param violation_budget: see :mod:`sppo_sb3.zoo` (``None``: the ``SPPO_VIOLATION_BUDGET`` variable).
+    :param violation_penalty: see :mod:`sppo_sb3.zoo` (``None``: the ``SPPO_VIOLATION_PENALTY`` variable).
     :param deployment_episodes: episodes of each deployment (with and without the shield) evaluated after training
         (0: none).
     :return: the experiment manager class now used by ``rl_zoo3.train``.
@@ -305,11 +220,15 @@ def install(
     import rl_zoo3.train as zoo_train
 
     register_algos()
+    # patch exp_manager.make_vec_env: training and eval envs get EpisodeCostInfo inside their Monitor (cost columns)
     zoo_exp_manager.make_vec_env = cost_monitored_make_vec_env  # type: ignore[assignment]
+    # patch exp_manager.EvalCallback: evaluations also log eval/mean_cost and save costs/violations in evaluations.npz
     zoo_exp_manager.EvalCallback = CostEvalCallback  # type: ignore[misc]
+    # patch exp_manager.TrialEvalCallback: Optuna trials record safety attributes and honour the violation budget
     zoo_exp_manager.TrialEvalCallback = SafeTrialEvalCallback  # type: ignore[misc]
     SafeExperimentManager.violation_budget = violation_budget
     SafeExperimentManager.violation_penalty = violation_penalty
     SafeExperimentManager.deployment_episodes = deployment_episodes
+    # patch train.ExperimentManager: rl-zoo3's train() builds ours (safety summary, *_kwargs strings, budget)
     zoo_train.ExperimentManager = SafeExperimentManager  # type: ignore[misc]
     return SafeExperimentManager
