@@ -32,7 +32,7 @@ from gymnasium import spaces
 from sb3_contrib import TRPO
 from sb3_contrib.common.utils import conjugate_gradient_solver, flat_grad
 from stable_baselines3.common.buffers import RolloutBuffer
-from stable_baselines3.common.distributions import kl_divergence
+from stable_baselines3.common.distributions import Distribution, kl_divergence
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import explained_variance
@@ -69,6 +69,40 @@ class CPOSolution:
     nu: float
     coef_g: float
     coef_b: float
+
+
+@dataclass(frozen=True)
+class CPOBatch:
+    """The rollout one CPO step is computed on, and the policy ``π_k`` that collected it.
+
+    :param observations: observations (every ``sub_sampling_factor``-th sample of the rollout).
+    :param actions: the actions taken (``long`` and flat for a ``Discrete`` action space).
+    :param old_log_prob: ``log π_k(a|s)`` recorded in the rollout.
+    :param advantages: reward advantages ``A`` (normalised if ``normalize_advantage``).
+    :param cost_advantages: cost advantages ``A_C``, centred only (their scale must match ``c``).
+    :param old_distribution: ``π_k``'s action distribution on ``observations``, without gradient.
+    """
+
+    observations: th.Tensor
+    actions: th.Tensor
+    old_log_prob: th.Tensor
+    advantages: th.Tensor
+    cost_advantages: th.Tensor
+    old_distribution: Distribution
+
+
+@dataclass(frozen=True)
+class CPOSurrogates:
+    """The surrogates of the CPO update (Achiam et al. 2017, Section 5) at some parameters ``θ``, as 0-d tensors.
+
+    :param reward: reward surrogate ``E[ratio·A]`` (``ratio = π_θ(a|s) / π_k(a|s)``).
+    :param cost: cost surrogate ``E[ratio·A_C]``.
+    :param kl: mean KL divergence ``D̄_KL(π_θ ‖ π_k)``.
+    """
+
+    reward: th.Tensor
+    cost: th.Tensor
+    kl: th.Tensor
 
 
 def cpo_dual_solution(q: float, r: float, s: float, c: float, delta: float, eps: float = 1e-8) -> CPOSolution:
@@ -277,12 +311,12 @@ class CPO(SafeOnPolicyMixin, TRPO):
             param.data = original + step[start : start + n].view(param.shape)
             start += n
 
-    def train(self) -> None:
-        """One CPO policy step (dual solution + line search), then the reward and cost critics' regression."""
-        self.policy.set_training_mode(True)
-        self._update_learning_rate(self.policy.optimizer)
-        c = self.constraint_value()
+    def _policy_batch(self) -> CPOBatch:
+        """The whole rollout, every ``sub_sampling_factor``-th sample, with the advantages and ``π_k`` the step needs.
 
+        The reward advantage is normalised (if ``normalize_advantage``); the cost advantage is only centred, so that
+        the cost surrogate keeps the per-step units of the constraint value ``c``.
+        """
         data = next(self.rollout_buffer.get(batch_size=None))
         sl = slice(None, None, self.sub_sampling_factor)
         obs, old_log_prob = data.observations[sl], data.old_log_prob[sl]
@@ -293,18 +327,40 @@ class CPO(SafeOnPolicyMixin, TRPO):
         if self.normalize_advantage and len(advantages) > 1:
             advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
         cost_advantages = cost_advantages - cost_advantages.mean()
-
         with th.no_grad():
             old_distribution = copy.copy(self.policy.get_distribution(obs))
-        distribution = self.policy.get_distribution(obs)
-        ratio = th.exp(distribution.log_prob(actions) - old_log_prob)
-        reward_surrogate = (advantages * ratio).mean()
-        cost_surrogate = (cost_advantages * ratio).mean()
-        kl_div = kl_divergence(distribution, old_distribution).mean()
+        return CPOBatch(obs, actions, old_log_prob, advantages, cost_advantages, old_distribution)
+
+    def _surrogates(self, batch: CPOBatch) -> CPOSurrogates:
+        """The reward and cost surrogates and the mean KL to ``π_k`` at the current parameters.
+
+        With ``ratio = π_θ(a|s) / π_k(a|s)``: the sample estimates ``E[ratio·A]`` and ``E[ratio·A_C]`` of the
+        objective and constraint of the CPO update (Achiam et al. 2017, Section 5; their gradients at ``θ_k`` are
+        eq. 10's ``g`` and ``b``) and ``D̄_KL(π_θ ‖ π_k)`` (whose Hessian at ``θ_k`` is ``H``). Differentiable
+        unless called under ``th.no_grad()`` (the line search).
+
+        :param batch: the rollout and ``π_k``.
+        :return: the surrogates.
+        """
+        distribution = self.policy.get_distribution(batch.observations)
+        ratio = th.exp(distribution.log_prob(batch.actions) - batch.old_log_prob)
+        return CPOSurrogates(
+            reward=(batch.advantages * ratio).mean(),
+            cost=(batch.cost_advantages * ratio).mean(),
+            kl=kl_divergence(distribution, batch.old_distribution).mean(),
+        )
+
+    def train(self) -> None:
+        """One CPO policy step (dual solution + line search), then the reward and cost critics' regression."""
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        c = self.constraint_value()
+        batch = self._policy_batch()
+        before = self._surrogates(batch)
 
         self.policy.optimizer.zero_grad()
-        actor_params, g, grad_kl, _ = self._compute_actor_grad(kl_div, reward_surrogate)
-        b = flat_grad(cost_surrogate, actor_params, retain_graph=True)
+        actor_params, g, grad_kl, _ = self._compute_actor_grad(before.kl, before.reward)
+        b = flat_grad(before.cost, actor_params, retain_graph=True)
         fisher_product = partial(self.hessian_vector_product, actor_params, grad_kl)
         h_inv_g = conjugate_gradient_solver(fisher_product, g, max_iter=self.cg_max_steps)
         h_inv_b = conjugate_gradient_solver(fisher_product, b, max_iter=self.cg_max_steps)
@@ -317,14 +373,11 @@ class CPO(SafeOnPolicyMixin, TRPO):
         with th.no_grad():
             for _ in range(self.line_search_max_iter):
                 self._apply_step(actor_params, originals, coef * step)
-                distribution = self.policy.get_distribution(obs)
-                ratio = th.exp(distribution.log_prob(actions) - old_log_prob)
-                new_reward_surrogate = (advantages * ratio).mean()
-                new_cost_surrogate = (cost_advantages * ratio).mean()
-                kl_value = kl_divergence(distribution, old_distribution).mean().item()
+                trial = self._surrogates(batch)
+                kl_value = trial.kl.item()
                 kl_ok = kl_value <= self.target_kl
-                cost_ok = (new_cost_surrogate - cost_surrogate).item() <= max(0.0, -c)
-                reward_ok = solution.case == "infeasible" or new_reward_surrogate.item() >= reward_surrogate.item()
+                cost_ok = (trial.cost - before.cost).item() <= max(0.0, -c)
+                reward_ok = solution.case == "infeasible" or trial.reward.item() >= before.reward.item()
                 if kl_ok and cost_ok and reward_ok and step.abs().sum() > 0:
                     success = True
                     break
@@ -345,7 +398,7 @@ class CPO(SafeOnPolicyMixin, TRPO):
             self.logger.record("train/lagrange_nu", solution.nu)
         self.logger.record("train/is_line_search_success", float(success))
         self.logger.record("train/kl_divergence_loss", kl_value)
-        self.logger.record("train/policy_objective", reward_surrogate.item())
+        self.logger.record("train/policy_objective", before.reward.item())
         self.logger.record("train/explained_variance", explained_variance(buf.values.flatten(), buf.returns.flatten()))
         for key, value in critic_logs.items():
             self.logger.record(f"train/{key}", value)
