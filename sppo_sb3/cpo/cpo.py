@@ -350,14 +350,17 @@ class CPO(SafeOnPolicyMixin, TRPO):
             kl=kl_divergence(distribution, batch.old_distribution).mean(),
         )
 
-    def train(self) -> None:
-        """One CPO policy step (dual solution + line search), then the reward and cost critics' regression."""
-        self.policy.set_training_mode(True)
-        self._update_learning_rate(self.policy.optimizer)
-        c = self.constraint_value()
-        batch = self._policy_batch()
-        before = self._surrogates(batch)
+    def _step_direction(self, before: CPOSurrogates, c: float) -> tuple[list[th.nn.Parameter], th.Tensor, CPOSolution]:
+        """The full CPO step ``x*`` of eq. 10 (Achiam et al. 2017, Section 6.1), before the line search.
 
+        ``g``, ``b`` and the KL's gradient come from autograd, ``H⁻¹g`` and ``H⁻¹b`` from the conjugate gradient on
+        the (damped) Fisher-vector product, and :func:`cpo_dual_solution` combines them (Appendix 10.2; the infeasible
+        case is the recovery step of Section 6.2).
+
+        :param before: the surrogates at ``θ_k``, with their graph.
+        :param c: the constraint value ``c`` (per-step units of the cost surrogate).
+        :return: the actor's parameters (those the KL depends on), the flat step on them, and the dual solution.
+        """
         self.policy.optimizer.zero_grad()
         actor_params, g, grad_kl, _ = self._compute_actor_grad(before.kl, before.reward)
         b = flat_grad(before.cost, actor_params, retain_graph=True)
@@ -367,24 +370,73 @@ class CPO(SafeOnPolicyMixin, TRPO):
         q, r, s = float(g @ h_inv_g), float(g @ h_inv_b), float(b @ h_inv_b)
         solution = cpo_dual_solution(q, r, s, c, self.target_kl)
         step = (solution.coef_g * h_inv_g + solution.coef_b * h_inv_b).detach()
+        return actor_params, step, solution
 
+    def _step_is_acceptable(self, trial: CPOSurrogates, before: CPOSurrogates, c: float, recovering: bool) -> bool:
+        """The line search's test of a trial point, on the sample surrogates (Achiam et al. 2017, Section 6.1).
+
+        Accepted when the KL stays within the trust region (``D̄_KL <= δ``, the true KL, not eq. 10's quadratic), the
+        cost surrogate grows by at most ``max(0, -c)`` (the linearised constraint ``c + ΔJ_C <= 0``, relaxed to "no
+        increase" while violated) and the reward surrogate does not decrease, except in the infeasible-recovery
+        case (Section 6.2), whose step is meant to decrease the cost whatever it does to the reward.
+
+        :param trial: the surrogates at the trial point (computed without gradient).
+        :param before: the surrogates at ``θ_k``.
+        :param c: the constraint value ``c``.
+        :param recovering: the step is the infeasible case's recovery step: the reward test is skipped.
+        :return: whether the trial point is accepted.
+        """
+        within_trust_region = trial.kl.item() <= self.target_kl
+        cost_within_limit = (trial.cost - before.cost).item() <= max(0.0, -c)
+        reward_improves = recovering or trial.reward.item() >= before.reward.item()
+        return within_trust_region and cost_within_limit and reward_improves
+
+    def _line_search(
+        self,
+        batch: CPOBatch,
+        actor_params: list[th.nn.Parameter],
+        step: th.Tensor,
+        before: CPOSurrogates,
+        c: float,
+        recovering: bool,
+    ) -> tuple[bool, float]:
+        """Backtracking line search along the CPO step (Achiam et al. 2017, Section 6.1 and Algorithm 1).
+
+        Tries ``θ_k + coef·step`` for ``coef = 1, f, f², ...`` (``f``: ``line_search_shrinking_factor``, at most
+        ``line_search_max_iter`` points) and keeps the first that :meth:`_step_is_acceptable` accepts; a zero step
+        is never accepted (nothing moved). When none is, the parameters go back to ``θ_k``.
+
+        :param batch: the rollout and ``π_k``.
+        :param actor_params: the parameters the step applies to, at ``θ_k``.
+        :param step: the full step, flat over ``actor_params``.
+        :param before: the surrogates at ``θ_k``.
+        :param c: the constraint value ``c``.
+        :param recovering: the step is the infeasible case's recovery step (no reward test).
+        :return: whether a point was accepted, and its KL to ``π_k`` (``0.0`` when none was).
+        """
         originals = [param.detach().clone() for param in actor_params]
-        success, kl_value, coef = False, 0.0, 1.0
+        step_moves = bool(step.abs().sum() > 0)
+        coef = 1.0
         with th.no_grad():
             for _ in range(self.line_search_max_iter):
                 self._apply_step(actor_params, originals, coef * step)
                 trial = self._surrogates(batch)
-                kl_value = trial.kl.item()
-                kl_ok = kl_value <= self.target_kl
-                cost_ok = (trial.cost - before.cost).item() <= max(0.0, -c)
-                reward_ok = solution.case == "infeasible" or trial.reward.item() >= before.reward.item()
-                if kl_ok and cost_ok and reward_ok and step.abs().sum() > 0:
-                    success = True
-                    break
+                if step_moves and self._step_is_acceptable(trial, before, c, recovering):
+                    return True, trial.kl.item()
                 coef *= self.line_search_shrinking_factor
-            if not success:
-                self._apply_step(actor_params, originals, th.zeros_like(step))
-                kl_value = 0.0
+            self._apply_step(actor_params, originals, th.zeros_like(step))
+        return False, 0.0
+
+    def train(self) -> None:
+        """One CPO policy step (dual solution + line search), then the reward and cost critics' regression."""
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        c = self.constraint_value()
+        batch = self._policy_batch()
+        before = self._surrogates(batch)
+
+        actor_params, step, solution = self._step_direction(before, c)
+        success, kl_value = self._line_search(batch, actor_params, step, before, c, recovering=solution.case == "infeasible")
 
         critic_logs = fit_critics(
             self.policy, self.rollout_buffer, self.n_critic_updates, self.batch_size, reward_critic=True, frozen=actor_params
