@@ -305,6 +305,12 @@ class CPO(SafeOnPolicyMixin, TRPO):
         return (self.cost_tracker.estimate() - self.cost_limit) / self.cost_tracker.mean_length()
 
     def _apply_step(self, params: list[th.nn.Parameter], originals: list[th.Tensor], step: th.Tensor) -> None:
+        """Set ``params`` to ``originals + step``.
+
+        :param params: the parameters to set.
+        :param originals: their values at ``θ_k``.
+        :param step: the flat step, in the order of ``params``.
+        """
         start = 0
         for param, original in zip(params, originals, strict=True):
             n = param.numel()
@@ -427,8 +433,47 @@ class CPO(SafeOnPolicyMixin, TRPO):
             self._apply_step(actor_params, originals, th.zeros_like(step))
         return False, 0.0
 
+    def _log_train(
+        self,
+        solution: CPOSolution,
+        c: float,
+        success: bool,
+        kl_value: float,
+        policy_objective: float,
+        critic_logs: dict[str, float],
+    ) -> None:
+        """Record the update's ``train/`` logs (and the measured episode cost).
+
+        :param solution: the dual solution of the step problem.
+        :param c: the constraint value ``c``.
+        :param success: whether the line search accepted a point.
+        :param kl_value: the accepted point's KL to ``π_k`` (``0.0`` when none was).
+        :param policy_objective: the reward surrogate at ``θ_k``.
+        :param critic_logs: the critics' regression logs, from :func:`~sppo_sb3.common.cost_policy.fit_critics`.
+        """
+        buf = self.rollout_buffer
+        self.logger.record("train/cpo_case", CPO_CASES[solution.case])
+        self.logger.record("train/constraint_value", c)
+        self.logger.record(EPISODE_COST_KEY, self.cost_tracker.estimate())
+        if math.isfinite(solution.nu):
+            self.logger.record("train/lagrange_nu", solution.nu)
+        self.logger.record("train/is_line_search_success", float(success))
+        self.logger.record("train/kl_divergence_loss", kl_value)
+        self.logger.record("train/policy_objective", policy_objective)
+        self.logger.record("train/explained_variance", explained_variance(buf.values.flatten(), buf.returns.flatten()))
+        for key, value in critic_logs.items():
+            self.logger.record(f"train/{key}", value)
+        if hasattr(self.policy, "log_std"):
+            self.logger.record("train/std", th.exp(self.policy.log_std).mean().item())
+        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+
     def train(self) -> None:
-        """One CPO policy step (dual solution + line search), then the reward and cost critics' regression."""
+        """One CPO update: the policy step of Achiam et al. 2017's Algorithm 1, then the critics' regression.
+
+        The surrogates at ``θ_k`` give the step of eq. 10 (:meth:`_step_direction`), which the backtracking line
+        search shortens until the sample surrogates accept it (:meth:`_line_search`); then ``V`` and ``V_C`` are
+        regressed with the actor's parameters frozen.
+        """
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
         c = self.constraint_value()
@@ -442,21 +487,7 @@ class CPO(SafeOnPolicyMixin, TRPO):
             self.policy, self.rollout_buffer, self.n_critic_updates, self.batch_size, reward_critic=True, frozen=actor_params
         )
         self._n_updates += 1
-        buf = self.rollout_buffer
-        self.logger.record("train/cpo_case", CPO_CASES[solution.case])
-        self.logger.record("train/constraint_value", c)
-        self.logger.record(EPISODE_COST_KEY, self.cost_tracker.estimate())
-        if math.isfinite(solution.nu):
-            self.logger.record("train/lagrange_nu", solution.nu)
-        self.logger.record("train/is_line_search_success", float(success))
-        self.logger.record("train/kl_divergence_loss", kl_value)
-        self.logger.record("train/policy_objective", before.reward.item())
-        self.logger.record("train/explained_variance", explained_variance(buf.values.flatten(), buf.returns.flatten()))
-        for key, value in critic_logs.items():
-            self.logger.record(f"train/{key}", value)
-        if hasattr(self.policy, "log_std"):
-            self.logger.record("train/std", th.exp(self.policy.log_std).mean().item())
-        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self._log_train(solution, c, success, kl_value, before.reward.item(), critic_logs)
         self.last_solution = solution
 
     def learn(
