@@ -322,6 +322,8 @@ class CPO(SafeOnPolicyMixin, TRPO):
 
         The reward advantage is normalised (if ``normalize_advantage``); the cost advantage is only centred, so that
         the cost surrogate keeps the per-step units of the constraint value ``c``.
+
+        :return: the batch the surrogates are computed on.
         """
         data = next(self.rollout_buffer.get(batch_size=None))
         sl = slice(None, None, self.sub_sampling_factor)
