@@ -32,7 +32,7 @@ from gymnasium import spaces
 from sb3_contrib import TRPO
 from sb3_contrib.common.utils import conjugate_gradient_solver, flat_grad
 from stable_baselines3.common.buffers import RolloutBuffer
-from stable_baselines3.common.distributions import kl_divergence
+from stable_baselines3.common.distributions import Distribution, kl_divergence
 from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.utils import explained_variance
@@ -68,6 +68,40 @@ class CPOSolution:
     nu: float
     coef_g: float
     coef_b: float
+
+
+@dataclass(frozen=True)
+class CPOBatch:
+    """The rollout one CPO step is computed on, and the policy ``π_k`` that collected it.
+
+    :param observations: observations (every ``sub_sampling_factor``-th sample of the rollout).
+    :param actions: the actions taken (``long`` and flat for a ``Discrete`` action space).
+    :param old_log_prob: ``log π_k(a|s)`` recorded in the rollout.
+    :param advantages: reward advantages ``A`` (normalised if ``normalize_advantage``).
+    :param cost_advantages: cost advantages ``A_C``, centred only (their scale must match ``c``).
+    :param old_distribution: ``π_k``'s action distribution on ``observations``, without gradient.
+    """
+
+    observations: th.Tensor
+    actions: th.Tensor
+    old_log_prob: th.Tensor
+    advantages: th.Tensor
+    cost_advantages: th.Tensor
+    old_distribution: Distribution
+
+
+@dataclass(frozen=True)
+class CPOSurrogates:
+    """The surrogates of the CPO update (Achiam et al. 2017, Section 5) at some parameters ``θ``, as 0-d tensors.
+
+    :param reward: reward surrogate ``E[ratio·A]`` (``ratio = π_θ(a|s) / π_k(a|s)``).
+    :param cost: cost surrogate ``E[ratio·A_C]``.
+    :param kl: mean KL divergence ``D̄_KL(π_θ ‖ π_k)``.
+    """
+
+    reward: th.Tensor
+    cost: th.Tensor
+    kl: th.Tensor
 
 
 def cpo_dual_solution(q: float, r: float, s: float, c: float, delta: float, eps: float = 1e-8) -> CPOSolution:
@@ -270,18 +304,26 @@ class CPO(SafeOnPolicyMixin, TRPO):
         return (self.cost_tracker.estimate() - self.cost_limit) / self.cost_tracker.mean_length()
 
     def _apply_step(self, params: list[th.nn.Parameter], originals: list[th.Tensor], step: th.Tensor) -> None:
+        """Set ``params`` to ``originals + step``.
+
+        :param params: the parameters to set.
+        :param originals: their values at ``θ_k``.
+        :param step: the flat step, in the order of ``params``.
+        """
         start = 0
         for param, original in zip(params, originals, strict=True):
             n = param.numel()
             param.data = original + step[start : start + n].view(param.shape)
             start += n
 
-    def train(self) -> None:
-        """One CPO policy step (dual solution + line search), then the reward and cost critics' regression."""
-        self.policy.set_training_mode(True)
-        self._update_learning_rate(self.policy.optimizer)
-        c = self.constraint_value()
+    def _policy_batch(self) -> CPOBatch:
+        """The whole rollout, every ``sub_sampling_factor``-th sample, with the advantages and ``π_k`` the step needs.
 
+        The reward advantage is normalised (if ``normalize_advantage``); the cost advantage is only centred, so that
+        the cost surrogate keeps the per-step units of the constraint value ``c``.
+
+        :return: the batch the surrogates are computed on.
+        """
         data = next(self.rollout_buffer.get(batch_size=None))
         sl = slice(None, None, self.sub_sampling_factor)
         obs, old_log_prob = data.observations[sl], data.old_log_prob[sl]
@@ -292,50 +334,124 @@ class CPO(SafeOnPolicyMixin, TRPO):
         if self.normalize_advantage and len(advantages) > 1:
             advantages = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
         cost_advantages = cost_advantages - cost_advantages.mean()
-
         with th.no_grad():
             old_distribution = copy.copy(self.policy.get_distribution(obs))
-        distribution = self.policy.get_distribution(obs)
-        ratio = th.exp(distribution.log_prob(actions) - old_log_prob)
-        reward_surrogate = (advantages * ratio).mean()
-        cost_surrogate = (cost_advantages * ratio).mean()
-        kl_div = kl_divergence(distribution, old_distribution).mean()
+        return CPOBatch(obs, actions, old_log_prob, advantages, cost_advantages, old_distribution)
 
+    def _surrogates(self, batch: CPOBatch) -> CPOSurrogates:
+        """The reward and cost surrogates and the mean KL to ``π_k`` at the current parameters.
+
+        With ``ratio = π_θ(a|s) / π_k(a|s)``: the sample estimates ``E[ratio·A]`` and ``E[ratio·A_C]`` of the
+        objective and constraint of the CPO update (Achiam et al. 2017, Section 5; their gradients at ``θ_k`` are
+        eq. 10's ``g`` and ``b``) and ``D̄_KL(π_θ ‖ π_k)`` (whose Hessian at ``θ_k`` is ``H``). Differentiable
+        unless called under ``th.no_grad()`` (the line search).
+
+        :param batch: the rollout and ``π_k``.
+        :return: the surrogates.
+        """
+        distribution = self.policy.get_distribution(batch.observations)
+        ratio = th.exp(distribution.log_prob(batch.actions) - batch.old_log_prob)
+        return CPOSurrogates(
+            reward=(batch.advantages * ratio).mean(),
+            cost=(batch.cost_advantages * ratio).mean(),
+            kl=kl_divergence(distribution, batch.old_distribution).mean(),
+        )
+
+    def _step_direction(self, before: CPOSurrogates, c: float) -> tuple[list[th.nn.Parameter], th.Tensor, CPOSolution]:
+        """The full CPO step ``x*`` of eq. 10 (Achiam et al. 2017, Section 6.1), before the line search.
+
+        ``g``, ``b`` and the KL's gradient come from autograd, ``H⁻¹g`` and ``H⁻¹b`` from the conjugate gradient on
+        the (damped) Fisher-vector product, and :func:`cpo_dual_solution` combines them (Appendix 10.2; the infeasible
+        case is the recovery step of Section 6.2).
+
+        :param before: the surrogates at ``θ_k``, with their graph.
+        :param c: the constraint value ``c`` (per-step units of the cost surrogate).
+        :return: the actor's parameters (those the KL depends on), the flat step on them, and the dual solution.
+        """
         self.policy.optimizer.zero_grad()
-        actor_params, g, grad_kl, _ = self._compute_actor_grad(kl_div, reward_surrogate)
-        b = flat_grad(cost_surrogate, actor_params, retain_graph=True)
+        actor_params, g, grad_kl, _ = self._compute_actor_grad(before.kl, before.reward)
+        b = flat_grad(before.cost, actor_params, retain_graph=True)
         fisher_product = partial(self.hessian_vector_product, actor_params, grad_kl)
         h_inv_g = conjugate_gradient_solver(fisher_product, g, max_iter=self.cg_max_steps)
         h_inv_b = conjugate_gradient_solver(fisher_product, b, max_iter=self.cg_max_steps)
         q, r, s = float(g @ h_inv_g), float(g @ h_inv_b), float(b @ h_inv_b)
         solution = cpo_dual_solution(q, r, s, c, self.target_kl)
         step = (solution.coef_g * h_inv_g + solution.coef_b * h_inv_b).detach()
+        return actor_params, step, solution
 
+    def _step_is_acceptable(self, trial: CPOSurrogates, before: CPOSurrogates, c: float, recovering: bool) -> bool:
+        """The line search's test of a trial point, on the sample surrogates (Achiam et al. 2017, Section 6.1).
+
+        Accepted when the KL stays within the trust region (``D̄_KL <= δ``, the true KL, not eq. 10's quadratic), the
+        cost surrogate grows by at most ``max(0, -c)`` (the linearised constraint ``c + ΔJ_C <= 0``, relaxed to "no
+        increase" while violated) and the reward surrogate does not decrease, except in the infeasible-recovery
+        case (Section 6.2), whose step is meant to decrease the cost whatever it does to the reward.
+
+        :param trial: the surrogates at the trial point (computed without gradient).
+        :param before: the surrogates at ``θ_k``.
+        :param c: the constraint value ``c``.
+        :param recovering: the step is the infeasible case's recovery step: the reward test is skipped.
+        :return: whether the trial point is accepted.
+        """
+        within_trust_region = trial.kl.item() <= self.target_kl
+        cost_within_limit = (trial.cost - before.cost).item() <= max(0.0, -c)
+        reward_improves = recovering or trial.reward.item() >= before.reward.item()
+        return within_trust_region and cost_within_limit and reward_improves
+
+    def _line_search(
+        self,
+        batch: CPOBatch,
+        actor_params: list[th.nn.Parameter],
+        step: th.Tensor,
+        before: CPOSurrogates,
+        c: float,
+        recovering: bool,
+    ) -> tuple[bool, float]:
+        """Backtracking line search along the CPO step (Achiam et al. 2017, Section 6.1 and Algorithm 1).
+
+        Tries ``θ_k + coef·step`` for ``coef = 1, f, f², ...`` (``f``: ``line_search_shrinking_factor``, at most
+        ``line_search_max_iter`` points) and keeps the first that :meth:`_step_is_acceptable` accepts; a zero step
+        is never accepted (nothing moved). When none is, the parameters go back to ``θ_k``.
+
+        :param batch: the rollout and ``π_k``.
+        :param actor_params: the parameters the step applies to, at ``θ_k``.
+        :param step: the full step, flat over ``actor_params``.
+        :param before: the surrogates at ``θ_k``.
+        :param c: the constraint value ``c``.
+        :param recovering: the step is the infeasible case's recovery step (no reward test).
+        :return: whether a point was accepted, and its KL to ``π_k`` (``0.0`` when none was).
+        """
         originals = [param.detach().clone() for param in actor_params]
-        success, kl_value, coef = False, 0.0, 1.0
+        step_moves = bool(step.abs().sum() > 0)
+        coef = 1.0
         with th.no_grad():
             for _ in range(self.line_search_max_iter):
                 self._apply_step(actor_params, originals, coef * step)
-                distribution = self.policy.get_distribution(obs)
-                ratio = th.exp(distribution.log_prob(actions) - old_log_prob)
-                new_reward_surrogate = (advantages * ratio).mean()
-                new_cost_surrogate = (cost_advantages * ratio).mean()
-                kl_value = kl_divergence(distribution, old_distribution).mean().item()
-                kl_ok = kl_value <= self.target_kl
-                cost_ok = (new_cost_surrogate - cost_surrogate).item() <= max(0.0, -c)
-                reward_ok = solution.case == "infeasible" or new_reward_surrogate.item() >= reward_surrogate.item()
-                if kl_ok and cost_ok and reward_ok and step.abs().sum() > 0:
-                    success = True
-                    break
+                trial = self._surrogates(batch)
+                if step_moves and self._step_is_acceptable(trial, before, c, recovering):
+                    return True, trial.kl.item()
                 coef *= self.line_search_shrinking_factor
-            if not success:
-                self._apply_step(actor_params, originals, th.zeros_like(step))
-                kl_value = 0.0
+            self._apply_step(actor_params, originals, th.zeros_like(step))
+        return False, 0.0
 
-        critic_logs = fit_critics(
-            self.policy, self.rollout_buffer, self.n_critic_updates, self.batch_size, reward_critic=True, frozen=actor_params
-        )
-        self._n_updates += 1
+    def _log_train(
+        self,
+        solution: CPOSolution,
+        c: float,
+        success: bool,
+        kl_value: float,
+        policy_objective: float,
+        critic_logs: dict[str, float],
+    ) -> None:
+        """Record the update's ``train/`` logs (and the measured episode cost).
+
+        :param solution: the dual solution of the step problem.
+        :param c: the constraint value ``c``.
+        :param success: whether the line search accepted a point.
+        :param kl_value: the accepted point's KL to ``π_k`` (``0.0`` when none was).
+        :param policy_objective: the reward surrogate at ``θ_k``.
+        :param critic_logs: the critics' regression logs, from :func:`~sppo_sb3.common.cost_policy.fit_critics`.
+        """
         buf = self.rollout_buffer
         self.logger.record("train/cpo_case", CPO_CASES[solution.case])
         self.logger.record("train/constraint_value", c)
@@ -343,13 +459,35 @@ class CPO(SafeOnPolicyMixin, TRPO):
             self.logger.record("train/lagrange_nu", solution.nu)
         self.logger.record("train/is_line_search_success", float(success))
         self.logger.record("train/kl_divergence_loss", kl_value)
-        self.logger.record("train/policy_objective", reward_surrogate.item())
+        self.logger.record("train/policy_objective", policy_objective)
         self.logger.record("train/explained_variance", explained_variance(buf.values.flatten(), buf.returns.flatten()))
         for key, value in critic_logs.items():
             self.logger.record(f"train/{key}", value)
         if hasattr(self.policy, "log_std"):
             self.logger.record("train/std", th.exp(self.policy.log_std).mean().item())
         self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+
+    def train(self) -> None:
+        """One CPO update: the policy step of Achiam et al. 2017's Algorithm 1, then the critics' regression.
+
+        The surrogates at ``θ_k`` give the step of eq. 10 (:meth:`_step_direction`), which the backtracking line
+        search shortens until the sample surrogates accept it (:meth:`_line_search`); then ``V`` and ``V_C`` are
+        regressed with the actor's parameters frozen.
+        """
+        self.policy.set_training_mode(True)
+        self._update_learning_rate(self.policy.optimizer)
+        c = self.constraint_value()
+        batch = self._policy_batch()
+        before = self._surrogates(batch)
+
+        actor_params, step, solution = self._step_direction(before, c)
+        success, kl_value = self._line_search(batch, actor_params, step, before, c, recovering=solution.case == "infeasible")
+
+        critic_logs = fit_critics(
+            self.policy, self.rollout_buffer, self.n_critic_updates, self.batch_size, reward_critic=True, frozen=actor_params
+        )
+        self._n_updates += 1
+        self._log_train(solution, c, success, kl_value, before.reward.item(), critic_logs)
         self.last_solution = solution
 
     def learn(
