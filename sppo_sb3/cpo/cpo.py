@@ -39,6 +39,7 @@ from stable_baselines3.common.utils import explained_variance
 
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer
 from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
+from sppo_sb3.common.keys import N_UPDATES_LOG_KEY
 from sppo_sb3.common.lagrange import DEFAULT_COST_LIMIT
 from sppo_sb3.common.on_policy import SafeOnPolicyMixin
 from sppo_sb3.cpo.policies import MlpPolicy
@@ -443,7 +444,7 @@ class CPO(SafeOnPolicyMixin, TRPO):
         policy_objective: float,
         critic_logs: dict[str, float],
     ) -> None:
-        """Record the update's ``train/`` logs (and the measured episode cost).
+        """Record the update's ``train/`` logs.
 
         :param solution: the dual solution of the step problem.
         :param c: the constraint value ``c``.
@@ -465,7 +466,7 @@ class CPO(SafeOnPolicyMixin, TRPO):
             self.logger.record(f"train/{key}", value)
         if hasattr(self.policy, "log_std"):
             self.logger.record("train/std", th.exp(self.policy.log_std).mean().item())
-        self.logger.record("train/n_updates", self._n_updates, exclude="tensorboard")
+        self.logger.record(N_UPDATES_LOG_KEY, self._n_updates, exclude="tensorboard")
 
     def train(self) -> None:
         """One CPO update: the policy step of Achiam et al. 2017's Algorithm 1, then the critics' regression.
