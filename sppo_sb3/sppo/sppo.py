@@ -97,8 +97,8 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
     :param topo_kwargs: :class:`TOPOConfig` overrides.
     :param plan_at_predict: ``predict`` plans with MPPI (``True``) or acts with the policy prior alone (fast).
     :param shield_at_predict: ``predict`` passes its actions through the shield.
-    :param replay_buffer_kwargs: extra arguments of :class:`ShieldedReplayBuffer` (``absorbing`` and the penalty come
-        from the arguments above).
+    :param replay_buffer_kwargs: extra arguments of :class:`ShieldedReplayBuffer` (e.g. ``handle_timeout_termination``;
+        ``absorbing`` and the penalty come from the arguments above).
     :param optimize_memory_usage: SB3's replay-buffer option; ``B̃`` needs explicit next observations, so only
         ``False`` (SB3's default) is accepted.
     :param compile: compile the planner (all ``J`` iterations of Alg. 2) and the whole TOPO update (Alg. 3) with
@@ -109,10 +109,11 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         :attr:`compile_stats`. The eager code is the reference and is used, after one warning, if compiling fails.
     :param stats_window_size: episodes averaged in the ``rollout/`` logs and the ``safety/ep_*_mean`` values.
     :param tensorboard_log: TensorBoard log folder (``None``: none).
-    :param policy_kwargs: arguments of :class:`TOLDPolicy` (the TOLD sizes, the optimiser).
+    :param policy_kwargs: arguments of :class:`TOLDPolicy`: the TOLD sizes ``latent_dim``, ``encoder_dim``,
+        ``hidden_dim`` and the optimiser's ``optimizer_class``, ``optimizer_kwargs``.
     :param verbose: 0 none, 1 info, 2 debug.
-    :param seed: seed of the random generators.
-    :param device: torch device (``"auto"``: CUDA where available).
+    :param seed: seed of the random generators (Python's, numpy's, torch's, the action space's and the envs').
+    :param device: torch device: ``"cpu"``, ``"cuda"`` or ``"auto"`` (CUDA where available).
     :param _init_setup_model: build the networks now.
 
     Measured effects of ``absorbing``, of the planner's ``max_rows`` and ``dtype`` and of TOLD's ELU are listed in
