@@ -4,9 +4,8 @@ The class docstring is the single source: for every algorithm of :data:`sppo_sb3
 ``| argument | default | meaning |`` lists the arguments of ``__init__`` in signature order, with the default read
 from :func:`inspect.signature` (``required`` where there is none) and the meaning from the class docstring's
 ``:param name: text`` entry, Sphinx markup turned into markdown (:func:`sphinx_to_markdown`). Left out are SB3's
-private arguments (``_init_setup_model``) and deprecated aliases, whose ``:param:`` text starts with "deprecated"
-(they still need the entry). In each page the table lies between :data:`BEGIN` and :data:`END`; everything outside
-them is hand-written.
+private arguments (``_init_setup_model``), which still need the entry. In each page the table lies between
+:data:`BEGIN` and :data:`END`; everything outside them is hand-written.
 
 ``python scripts/parameter_tables.py --write`` rewrites the tables in place; without ``--write`` it only checks
 them (exit status 1 when a page differs), as ``tests/test_docs.py`` does.
@@ -98,9 +97,9 @@ def _cell(text: str) -> str:
     return text.replace("|", r"\|")
 
 
-def listed(name: str, text: str) -> bool:
-    """Whether the argument ``name``, documented as ``text``, has a row: not private, not a deprecated alias."""
-    return not name.startswith("_") and not text.lower().startswith("deprecated")
+def listed(name: str) -> bool:
+    """Whether the argument ``name`` has a row: every argument but SB3's private ones."""
+    return not name.startswith("_")
 
 
 def render_table(cls: type) -> str:
@@ -114,7 +113,7 @@ def render_table(cls: type) -> str:
         raise ValueError(f"{cls.__name__}'s docstring has no :param: entry for {', '.join(missing)}")
     rows = ["| argument | default | meaning |", "|---|---|---|"]
     for p in constructor_parameters(cls):
-        if not listed(p.name, docs[p.name]):
+        if not listed(p.name):
             continue
         default = "required" if p.default is inspect.Parameter.empty else f"`{p.default!r}`"
         rows.append(f"| `{p.name}` | {_cell(default)} | {_cell(docs[p.name])} |")

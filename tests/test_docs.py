@@ -55,13 +55,12 @@ def test_table_comes_from_the_signature_and_the_docstring() -> None:
         :param policy: the policy (``"MlpPolicy"``) or
             a :class:`~pkg.Policy` class.
         :param rate: ``a | b``.
-        :param old_rate: deprecated name of ``rate``.
         :param _init_setup_model: build the networks now.
 
         Closing prose.
         """
 
-        def __init__(self, policy: str, rate: float = 1e-3, old_rate: float | None = None, _init_setup_model: bool = True):
+        def __init__(self, policy: str, rate: float = 1e-3, _init_setup_model: bool = True):
             pass
 
     assert docs_tables.render_table(Algo) == "\n".join(
@@ -76,8 +75,8 @@ def test_table_comes_from_the_signature_and_the_docstring() -> None:
     class Undocumented(Algo):
         """:param policy: the policy."""
 
-    assert docs_tables.missing_params(Undocumented) == ["rate", "old_rate", "_init_setup_model"]
-    with pytest.raises(ValueError, match="no :param: entry for rate, old_rate, _init_setup_model"):
+    assert docs_tables.missing_params(Undocumented) == ["rate", "_init_setup_model"]
+    with pytest.raises(ValueError, match="no :param: entry for rate, _init_setup_model"):
         docs_tables.render_table(Undocumented)
 
 
