@@ -18,6 +18,7 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecNormalize
+from tiny_hyperparams import QUICK_CSC, TINY_ON_POLICY
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.common.costs import MissingCostError
@@ -28,8 +29,6 @@ from sppo_sb3.csc import CSC
 from sppo_sb3.experiments.configs import REPO_HYPERPARAMS_DIR as HYPERPARAMS_DIR
 from sppo_sb3.pdo import PDO
 from sppo_sb3.sailr import SAILR
-
-TINY = dict(net_arch=[16])
 
 
 def test_cost_gae_hand_computed() -> None:
@@ -123,7 +122,7 @@ def test_episode_cost_tracker() -> None:
 def test_missing_cost_is_a_clear_error(algo: type) -> None:
     kwargs = {"shield": None} if algo is SAILR else {}
     with pytest.warns(UserWarning, match="plain PPO") if algo is SAILR else contextlib.nullcontext():
-        model = algo("MlpPolicy", "Pendulum-v1", n_steps=64, batch_size=32, policy_kwargs=TINY, **kwargs)
+        model = algo("MlpPolicy", "Pendulum-v1", **TINY_ON_POLICY, **kwargs)
     with pytest.raises(MissingCostError, match=r"info\['cost'\]"):
         model.learn(64)
     assert model.num_timesteps == 0  # failed on the very first step
@@ -134,19 +133,17 @@ def test_wrong_buffer_or_policy_is_a_clear_error() -> None:
         PDO(
             "MlpPolicy",
             "SafePointCircle-v0",
-            n_steps=64,
-            batch_size=32,
             rollout_buffer_class=RolloutBuffer,
-            policy_kwargs=TINY,
+            **TINY_ON_POLICY,
         )
     from stable_baselines3.common.policies import ActorCriticPolicy
 
     with pytest.raises(TypeError, match="CostActorCriticPolicy"):
-        PDO(ActorCriticPolicy, "SafePointCircle-v0", n_steps=64, batch_size=32, policy_kwargs=TINY)
+        PDO(ActorCriticPolicy, "SafePointCircle-v0", **TINY_ON_POLICY)
 
 
 def test_safety_metrics_logged(tmp_path) -> None:
-    model = PDO("MlpPolicy", "SafePointCircle-v0", n_steps=64, batch_size=32, n_epochs=1, policy_kwargs=TINY, seed=1)
+    model = PDO("MlpPolicy", "SafePointCircle-v0", **TINY_ON_POLICY, n_epochs=1, seed=1)
     model.set_logger(configure(str(tmp_path), ["csv"]))
     model.learn(256)
     header = (tmp_path / "progress.csv").read_text().splitlines()[0].split(",")
@@ -181,12 +178,8 @@ class _MatrixActions(gym.ActionWrapper):
 
 
 def _tiny(algo: type) -> dict[str, Any]:
-    """Small-budget arguments of each on-policy algorithm."""
-    kwargs: dict[str, Any] = dict(n_steps=64, batch_size=32, policy_kwargs=dict(TINY))
-    if algo is CSC:
-        kwargs.update(n_epochs=1, n_action_samples=4, cost_batch_size=16, cost_gradient_steps=2)
-        kwargs["policy_kwargs"]["cost_net_arch"] = [16]
-    return kwargs
+    """Small-budget arguments of each on-policy algorithm (the others' own update budgets at their defaults)."""
+    return QUICK_CSC if algo is CSC else TINY_ON_POLICY
 
 
 @pytest.mark.parametrize("algo", [PDO, CPO, SAILR, CSC])

@@ -16,6 +16,7 @@ import torch as th
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from stable_baselines3.common.vec_env import DummyVecEnv
+from tiny_hyperparams import TINY_ROLLOUT
 
 import sppo_sb3  # registers SafePointCircle-v0 and SafeHalfCheetahHeight-v1
 from sppo_sb3.common.costs import COST_KEY, shaped_cost
@@ -499,7 +500,7 @@ def test_auto_rule_is_built_from_the_env_parameters(env_id: str, alpha: float, r
 
 
 def test_auto_rule_of_an_algorithm_takes_the_env_alpha() -> None:
-    model = SAILR("MlpPolicy", gym.make("SafePointCircle-v0", alpha=0.3), shield="auto", n_steps=64, batch_size=32)
+    model = SAILR("MlpPolicy", gym.make("SafePointCircle-v0", alpha=0.3), shield="auto", **TINY_ROLLOUT)
     assert isinstance(model.shield_rule, PointCircleShieldingRule) and model.shield_rule.alpha == 0.3
 
 

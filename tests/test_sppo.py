@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch as th
 from stable_baselines3.common.env_util import make_vec_env
+from tiny_hyperparams import TINY_SPPO
 
 from sppo_sb3 import SPPO
 from sppo_sb3.common.costs import MissingCostError
@@ -20,18 +21,9 @@ from sppo_sb3.sppo.buffers import ShieldedReplayBuffer
 from sppo_sb3.sppo.optim import init_optimizer_state
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, topo_update
 
-TINY = dict(
-    learning_starts=60,
-    batch_size=16,
-    horizon=3,
-    buffer_size=5_000,
-    policy_kwargs=dict(latent_dim=8, encoder_dim=16, hidden_dim=16),
-    planner_kwargs=dict(num_samples=16, num_elites=4, iterations=2, horizon_warmup=0),
-)
-
 
 def tiny_sppo(env="SafePointCircle-v0", **overrides) -> SPPO:
-    return SPPO("TOLDPolicy", env, **{**TINY, "seed": 0, **overrides})
+    return SPPO("TOLDPolicy", env, **{**TINY_SPPO, "seed": 0, **overrides})
 
 
 def test_smoke_learn_predict_and_metrics():
