@@ -4,7 +4,8 @@ Each run trains one variant for ``--steps`` env steps (the hyperparameters of ``
 ``hyperparams/sailr.yml`` for the task) and writes ``<out>/<variant>/seed_<n>.json``: training violations,
 interventions, the intervention rate over the last ``--window`` steps, the mean return of the last 10 training
 episodes, and the deterministic policy's return and violations deployed with and without the shield. Finished runs
-are skipped (resume by running the same command again); ``--summary`` prints the table with means and 95% intervals.
+are skipped (resume by running the same command again); ``--summary`` prints the table: means over seeds with their
+95% percentile-bootstrap intervals (``sppo_sb3.experiments.stats``, as the grid's tables).
 
     python scripts/bench_absorbing.py --steps 30000 --seeds 0 1 2 3 4 --variants head-restart tdmpc-restart sailr
     python scripts/bench_absorbing.py --summary
@@ -27,8 +28,9 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 import sppo_sb3  # noqa: F401  (registers the task)
 from sppo_sb3 import SAILR, SPPO
-from sppo_sb3.evaluation import evaluate_deployment
 from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY
+from sppo_sb3.evaluation import evaluate_deployment
+from sppo_sb3.experiments import stats
 
 ENV_ID = "SafePointCircle-v0"
 ROOT = Path(__file__).resolve().parent.parent
@@ -41,8 +43,6 @@ VARIANTS: dict[str, dict[str, Any]] = {
     "tdmpc-restart-R10": dict(absorbing="restart", termination_model=False, absorbing_penalty=-10.0),
     "sailr": {},
 }
-T_975 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306, 9: 2.262}
-"""Student's t 0.975 quantiles by degrees of freedom, for the 95% intervals of the mean over seeds."""
 
 
 class StepRecorder(BaseCallback):
@@ -101,13 +101,25 @@ def run(variant: str, seed: int, steps: int, window: int, eval_episodes: int) ->
     return result
 
 
+INTERVAL_HEADER = (
+    f"`mean [low, high]`: mean over seeds and its {stats.CONFIDENCE:.0%} percentile-bootstrap confidence interval over "
+    f"seeds ({stats.BOOTSTRAP_REPS} resamples, sppo_sb3.experiments.stats); the mean alone for one seed."
+)
+
+
 def mean_interval(values: Sequence[float]) -> str:
-    """``mean ± half-width`` of the 95% t-interval over seeds (``mean`` alone for one seed)."""
+    """``mean [low, high]``: the mean over seeds and its bootstrap interval (:func:`stats.seed_intervals`).
+
+    Non-finite values (a run without that figure) are left out; ``mean`` alone where fewer than 2 seeds remain.
+    """
     x = np.asarray(values, dtype=float)
-    if len(x) < 2:
+    x = x[np.isfinite(x)]
+    if len(x) == 0:
+        return "–"
+    interval = stats.seed_intervals(x)
+    if not np.isfinite(interval["ci_low"]):
         return f"{x.mean():.2f}"
-    half = T_975.get(len(x) - 1, 1.96) * x.std(ddof=1) / np.sqrt(len(x))
-    return f"{x.mean():.2f} ± {half:.2f}"
+    return f"{x.mean():.2f} [{interval['ci_low']:.2f}, {interval['ci_high']:.2f}]"
 
 
 COLUMNS = {
@@ -126,8 +138,8 @@ COLUMNS = {
 
 
 def summary(out: Path) -> str:
-    """A markdown table, one row per variant: means and 95% intervals over the seeds that finished."""
-    lines = ["| variant | " + " | ".join(COLUMNS) + " |", "|---" * (len(COLUMNS) + 1) + "|"]
+    """:data:`INTERVAL_HEADER`, then a markdown table, one row per variant: the seeds that finished."""
+    lines = [INTERVAL_HEADER, "", "| variant | " + " | ".join(COLUMNS) + " |", "|---" * (len(COLUMNS) + 1) + "|"]
     for variant_dir in sorted(p for p in out.iterdir() if p.is_dir()):
         results = [json.loads(f.read_text()) for f in sorted(variant_dir.glob("seed_*.json"))]
         if not results:

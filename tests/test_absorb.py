@@ -8,6 +8,7 @@ import pytest
 import torch as th
 from recording import RecordExecuted
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+from tiny_hyperparams import SMALL_TOLD, TINIEST_MPPI, TINIEST_TOLD, TINY_ROLLOUT
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3 import PDO, SPPO
@@ -26,7 +27,7 @@ GAMMA = 0.9
 
 def tiny_told(termination: bool) -> TOLD:
     th.manual_seed(0)
-    return TOLD(obs_dim=3, action_dim=2, latent_dim=4, encoder_dim=8, hidden_dim=8, termination=termination)
+    return TOLD(obs_dim=3, action_dim=2, **TINIEST_TOLD, termination=termination)
 
 
 def set_termination_logit(model: TOLD, logit: float) -> None:
@@ -86,8 +87,8 @@ def test_policy_rollout_scores_with_the_termination_head() -> None:
 def test_termination_head_learns_the_absorbing_flags() -> None:
     """TOPO's cross-entropy teaches the head which (s, a) end the episode of M̃ (here: a_0 > 0)."""
     th.manual_seed(0)
-    model = TOLD(obs_dim=3, action_dim=2, latent_dim=8, encoder_dim=16, hidden_dim=32, termination=True)
-    target = TOLD(obs_dim=3, action_dim=2, latent_dim=8, encoder_dim=16, hidden_dim=32, termination=True)
+    model = TOLD(obs_dim=3, action_dim=2, **SMALL_TOLD, termination=True)
+    target = TOLD(obs_dim=3, action_dim=2, **SMALL_TOLD, termination=True)
     target.load_state_dict(model.state_dict())
     optimizer = th.optim.Adam([p for n, p in model.named_parameters() if not n.startswith("pi.")])
     pi_optimizer = th.optim.Adam(model.pi.parameters())
@@ -109,7 +110,7 @@ def test_termination_head_learns_the_absorbing_flags() -> None:
 
 
 def test_termination_model_switch(tmp_path) -> None:
-    kwargs = dict(policy_kwargs=dict(latent_dim=4, encoder_dim=8, hidden_dim=8), learning_starts=10, compile=False, seed=0)
+    kwargs = dict(policy_kwargs=TINIEST_TOLD, learning_starts=10, compile=False, seed=0)
     tdmpc = SPPO("TOLDPolicy", "SafePointCircle-v0", **kwargs)  # the default: TD-MPC's model
     assert tdmpc.policy.model.termination is None
     model = SPPO("TOLDPolicy", "SafePointCircle-v0", termination_model=True, **kwargs)
@@ -194,8 +195,8 @@ def test_evaluate_deployment_with_and_without_the_shield() -> None:
     model = SPPO(
         "TOLDPolicy",
         "SafePointCircle-v0",
-        policy_kwargs=dict(latent_dim=4, encoder_dim=8, hidden_dim=8),
-        planner_kwargs=dict(num_samples=8, num_elites=2, iterations=1),
+        policy_kwargs=TINIEST_TOLD,
+        planner_kwargs=TINIEST_MPPI,
         compile=False,
         seed=0,
     )
@@ -215,7 +216,7 @@ def test_evaluate_deployment_normalises_the_policys_observations_only() -> None:
     venv = VecNormalize(DummyVecEnv([lambda: gym.make("SafePointCircle-v0")]), norm_reward=False)
     venv.obs_rms.mean[:] = 1.0
     venv.obs_rms.var[:] = 4.0
-    model = PDO("MlpPolicy", venv, n_steps=64, batch_size=64, seed=0)
+    model = PDO("MlpPolicy", venv, **{**TINY_ROLLOUT, "batch_size": 64}, seed=0)
     seen_by_policy: list[np.ndarray] = []
     predict = model.predict
 
@@ -254,7 +255,7 @@ def test_refine_shield_fits_a_learned_rule_toward_the_point_rules_cost_value() -
     B: 3000 uniform random warm-up steps through the (still untrained, so permissive) learned shield. On 3000 held-out
     random-walk pairs after 500 refinement minibatches, the bounds are set with margin from the measured mean absolute
     error against the model rule's Q̄ (both on Definition 2's scale) and the gap between the mean learned Q̄ of
-    dangerous pairs (model Q̄ > 0.5) and of harmless ones (model Q̄ = 0); the figures are in docs/modules/sppo.md. The
+    dangerous pairs (model Q̄ > 0.5) and of harmless ones (model Q̄ = 0); the figures are in docs/results.md. The
     fit ranks danger but is coarse: the bootstrap reads Q̄(s', ζ(s')) at the backup's actions, which random data rarely
     holds.
     """
@@ -267,7 +268,7 @@ def test_refine_shield_fits_a_learned_rule_toward_the_point_rules_cost_value() -
         shield=rule,
         refine_shield=True,
         learning_starts=3000,
-        policy_kwargs=dict(latent_dim=4, encoder_dim=8, hidden_dim=8),
+        policy_kwargs=TINIEST_TOLD,
         horizon=2,
         compile=False,
         seed=0,

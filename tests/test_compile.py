@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import torch as th
 from stable_baselines3.common.env_util import make_vec_env
+from tiny_hyperparams import SMALL_TOLD, TINY_MPPI, TINY_SPPO
 
 from sppo_sb3 import SPPO
 from sppo_sb3.sppo.compile import CompiledFunction, should_compile
@@ -22,7 +23,6 @@ from sppo_sb3.sppo.policies import TOLDPolicy
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, topo_update
 
 CPU = th.device("cpu")
-SMALL = dict(latent_dim=8, encoder_dim=16, hidden_dim=32)
 
 
 @pytest.fixture(autouse=True)
@@ -37,7 +37,7 @@ def make_policy(obs_dim: int = 4, action_dim: int = 2) -> TOLDPolicy:
     th.manual_seed(0)
     obs_space = gym.spaces.Box(-1, 1, (obs_dim,), np.float32)
     act_space = gym.spaces.Box(-1, 1, (action_dim,), np.float32)
-    policy = TOLDPolicy(obs_space, act_space, lambda _: 1e-3, termination=False, **SMALL)
+    policy = TOLDPolicy(obs_space, act_space, lambda _: 1e-3, termination=False, **SMALL_TOLD)
     init_optimizer_state(policy.optimizer)
     init_optimizer_state(policy.pi_optimizer)
     return policy
@@ -107,7 +107,7 @@ def test_tensor_adam_step_equals_torch_adam():
 
 def test_compiled_plan_equals_eager_given_the_same_noise():
     model = make_policy().model
-    cfg = MPPIConfig(num_samples=16, num_elites=4, iterations=2, horizon=3)
+    cfg = MPPIConfig(**TINY_MPPI, horizon=3)
     noise = draw_noise(cfg, 2, 3, 2, False, th.Generator().manual_seed(3), CPU)
     args = (model, th.randn(2, 4), th.rand(2, 3, 2) - 0.5, noise, th.tensor(0.1), cfg)
     compiled = CompiledFunction(mppi, True, CPU, "planner")
@@ -144,20 +144,19 @@ def test_compile_argument_is_checked_and_resolved():
         SPPO("TOLDPolicy", "Pendulum-v1", compile="yes")
 
 
-TINY = dict(
-    learning_starts=40,
-    batch_size=16,
-    horizon=3,
-    buffer_size=2_000,
-    policy_kwargs=SMALL,
-    planner_kwargs=dict(num_samples=16, num_elites=4, iterations=2, horizon=2, horizon_warmup=0),
-    compile=True,
-    seed=0,
-)
+COMPILED_SPPO = {
+    **TINY_SPPO,
+    "learning_starts": 40,
+    "buffer_size": 2_000,
+    "policy_kwargs": SMALL_TOLD,
+    "planner_kwargs": {**TINY_SPPO["planner_kwargs"], "horizon": 2},
+    "compile": True,
+    "seed": 0,
+}
 
 
 def test_compiled_sppo_learns_saves_loads_resumes_and_changes_env(tmp_path):
-    model = SPPO("TOLDPolicy", "SafePointCircle-v0", **TINY).learn(80)
+    model = SPPO("TOLDPolicy", "SafePointCircle-v0", **COMPILED_SPPO).learn(80)
     assert model.planner.compiled and model._topo_update.compiled
     model.save(tmp_path / "sppo")
     loaded = SPPO.load(tmp_path / "sppo", env=make_vec_env("SafePointCircle-v0", n_envs=2, seed=1))
@@ -201,7 +200,7 @@ def test_compiled_topo_update_equals_eager_on_cuda():
 @CUDA
 @pytest.mark.cuda
 def test_a_model_trained_and_saved_on_cuda_loads_and_predicts_on_cpu(tmp_path):
-    model = SPPO("TOLDPolicy", "SafePointCircle-v0", **{**TINY, "compile": "auto"}, device="cuda").learn(80)
+    model = SPPO("TOLDPolicy", "SafePointCircle-v0", **{**COMPILED_SPPO, "compile": "auto"}, device="cuda").learn(80)
     model.save(tmp_path / "sppo")
     obs = np.array([[0.2, -0.3, 0.5, 0.1]], dtype=np.float32)
     on_gpu, _ = model.predict(obs, deterministic=True)

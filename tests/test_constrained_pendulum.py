@@ -10,6 +10,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from stable_baselines3.common.env_checker import check_env
+from tiny_hyperparams import SMALL_TOLD, TINY_SPPO
 
 from sppo_sb3 import SPPO
 from sppo_sb3.common.keys import COST_KEY
@@ -66,14 +67,13 @@ def test_the_shield_stops_a_pumping_policy(example: ModuleType) -> None:
 
 
 def test_shielded_sppo_has_no_violation(example: ModuleType) -> None:
-    small = dict(
-        learning_starts=200,
-        batch_size=32,
-        horizon=3,
-        buffer_size=5_000,
-        policy_kwargs=dict(latent_dim=8, encoder_dim=16, hidden_dim=32),
-        planner_kwargs=dict(num_samples=32, num_elites=8, iterations=2, horizon_warmup=0),
-    )
+    small = {
+        **TINY_SPPO,
+        "learning_starts": 200,
+        "batch_size": 32,
+        "policy_kwargs": SMALL_TOLD,
+        "planner_kwargs": {**TINY_SPPO["planner_kwargs"], "num_samples": 32, "num_elites": 8},
+    }
     with warnings.catch_warnings():
         warnings.filterwarnings("error", message=".*nothing is shielded")  # "auto" finds the registered rule
         summary = example.train_sppo(600, **small)

@@ -27,6 +27,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
+from tiny_hyperparams import QUICK_CSC, TINY_ON_POLICY, TINY_SPPO
 
 from sppo_sb3 import CPO, CSC, PDO, SAILR, SPPO
 from sppo_sb3.common.monitor import CostEvalCallback
@@ -126,23 +127,17 @@ def shield_for(env: gym.Env | VecEnv) -> ShieldingRule:
     return KeepCentreRule(space if isinstance(space, spaces.Box) else spaces.Box(-1, 1, (1,), np.float32))
 
 
-ON_POLICY = dict(n_steps=32, batch_size=32, policy_kwargs=dict(net_arch=[16]))
-TINY_SPPO = dict(
-    learning_starts=24,
-    batch_size=8,
-    horizon=2,
-    buffer_size=2_000,
-    policy_kwargs=dict(latent_dim=8, encoder_dim=16, hidden_dim=16),
-    planner_kwargs=dict(num_samples=12, num_elites=4, iterations=2, horizon_warmup=0),
-)
-TINY_CSC = dict(
-    n_epochs=1,
-    cost_batch_size=16,
-    cost_gradient_steps=2,
-    n_action_samples=4,
-    n_cost_baseline_samples=2,
-    **{**ON_POLICY, "policy_kwargs": dict(net_arch=[16], cost_net_arch=[16])},
-)
+# the tiny settings (tests/tiny_hyperparams.py), shortened to this file's budget of STEPS
+ON_POLICY = {**TINY_ON_POLICY, "n_steps": 32}
+SHORT_SPPO = {
+    **TINY_SPPO,
+    "learning_starts": 24,
+    "batch_size": 8,
+    "horizon": 2,
+    "buffer_size": 2_000,
+    "planner_kwargs": {**TINY_SPPO["planner_kwargs"], "num_samples": 12},
+}
+SHORT_CSC = {**QUICK_CSC, "n_steps": 32, "n_cost_baseline_samples": 2}
 
 
 @dataclass(frozen=True)
@@ -173,12 +168,12 @@ class Algo:
 
 
 MODEL_LIST = [
-    Algo("SPPO", SPPO, TINY_SPPO),
+    Algo("SPPO", SPPO, SHORT_SPPO),
     Algo("PDO", PDO, {**ON_POLICY, "n_epochs": 1}),
     Algo("CPO", CPO, {**ON_POLICY, "n_critic_updates": 1}),
     Algo("SAILR", SAILR, {**ON_POLICY, "n_epochs": 1}),
-    Algo("CSC", CSC, TINY_CSC),
-    Algo("SPPO-shield", SPPO, TINY_SPPO, shielded=True),
+    Algo("CSC", CSC, SHORT_CSC),
+    Algo("SPPO-shield", SPPO, SHORT_SPPO, shielded=True),
     Algo("SAILR-shield", SAILR, {**ON_POLICY, "n_epochs": 1}, shielded=True),
 ]
 ALGOS = pytest.mark.parametrize("algo", MODEL_LIST, ids=lambda algo: algo.name)

@@ -8,12 +8,11 @@ import numpy as np
 import pytest
 import torch as th
 from stable_baselines3.common.env_util import make_vec_env
+from tiny_hyperparams import TINY_CPO
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.cpo import CPO, cpo_dual_solution
 
-TINY = dict(net_arch=[16])
-FAST = dict(n_steps=64, batch_size=32, n_critic_updates=2, policy_kwargs=TINY)
 DELTA = 0.01
 
 
@@ -100,7 +99,7 @@ def test_degenerate_inputs() -> None:
 
 
 def test_cpo_smoke_save_load_predict(tmp_path) -> None:
-    model = CPO("MlpPolicy", "SafePointCircle-v0", seed=0, tensorboard_log=str(tmp_path / "tb"), **FAST)
+    model = CPO("MlpPolicy", "SafePointCircle-v0", seed=0, tensorboard_log=str(tmp_path / "tb"), **TINY_CPO)
     model.learn(256, progress_bar=True)
     assert model.safety_metrics.steps == 256 and model.last_solution is not None
     model.save(tmp_path / "cpo")
@@ -111,13 +110,14 @@ def test_cpo_smoke_save_load_predict(tmp_path) -> None:
 
 
 def test_cpo_n_envs() -> None:
-    model = CPO("MlpPolicy", make_vec_env("SafePointCircle-v0", n_envs=2, seed=0), seed=0, **FAST)
+    model = CPO("MlpPolicy", make_vec_env("SafePointCircle-v0", n_envs=2, seed=0), seed=0, **TINY_CPO)
     model.learn(256)
     assert model.safety_metrics.steps == 256 and model.rollout_buffer.costs.shape == (64, 2)
 
 
 def test_cpo_recovers_when_the_constraint_is_hopelessly_violated(monkeypatch: pytest.MonkeyPatch) -> None:
-    model = CPO("MlpPolicy", "SafePointCircle-v0", seed=0, n_steps=256, batch_size=64, n_critic_updates=1, policy_kwargs=TINY)
+    long_rollouts = {**TINY_CPO, "n_steps": 256, "batch_size": 64, "n_critic_updates": 1}
+    model = CPO("MlpPolicy", "SafePointCircle-v0", seed=0, **long_rollouts)
     monkeypatch.setattr(model, "constraint_value", lambda: 1e3)
     model.learn(256)
     sol = model.last_solution

@@ -9,6 +9,7 @@ import torch as th
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure
+from tiny_hyperparams import TINY_CSC
 
 import sppo_sb3  # noqa: F401  (registers SafePointCircle-v0)
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer
@@ -16,15 +17,6 @@ from sppo_sb3.common.costs import MissingCostError
 from sppo_sb3.csc import CSC, CSCPolicy, rejection_sample_actions
 
 ENV_ID = "SafePointCircle-v0"
-TINY = dict(
-    n_steps=64,
-    batch_size=32,
-    n_epochs=2,
-    cost_batch_size=32,
-    cost_gradient_steps=4,
-    n_action_samples=20,
-    policy_kwargs=dict(net_arch=[16], cost_net_arch=[16]),
-)
 
 
 @pytest.fixture(autouse=True)
@@ -36,7 +28,7 @@ def _one_thread():
 
 
 def test_smoke_learn_logs_and_safety_metrics(tmp_path):
-    model = CSC("MlpPolicy", ENV_ID, seed=0, **TINY)
+    model = CSC("MlpPolicy", ENV_ID, seed=0, **TINY_CSC)
     model.set_logger(configure(str(tmp_path), ["csv", "tensorboard"]))
     model.learn(256, progress_bar=True)
     assert model.num_timesteps == 256
@@ -51,7 +43,7 @@ def test_smoke_learn_logs_and_safety_metrics(tmp_path):
 
 
 def test_save_load_same_deterministic_predict_and_metrics(tmp_path):
-    model = CSC("MlpPolicy", ENV_ID, seed=1, **TINY)
+    model = CSC("MlpPolicy", ENV_ID, seed=1, **TINY_CSC)
     model.learn(128)
     obs = np.stack([model.observation_space.sample() for _ in range(8)])
     before, _ = model.predict(obs, deterministic=True)
@@ -79,7 +71,7 @@ def test_save_load_same_deterministic_predict_and_metrics(tmp_path):
 
 def test_two_envs():
     env = make_vec_env(ENV_ID, n_envs=2, seed=0)
-    model = CSC("MlpPolicy", env, seed=0, **{**TINY, "n_steps": 32})
+    model = CSC("MlpPolicy", env, seed=0, **{**TINY_CSC, "n_steps": 32})
     model.learn(128)
     assert model.num_timesteps == 128
     assert model.safety_metrics.steps == 128
@@ -90,7 +82,7 @@ def test_two_envs():
 
 
 def test_another_number_of_envs_starts_a_new_cost_buffer(tmp_path):
-    model = CSC("MlpPolicy", ENV_ID, seed=0, **TINY).learn(64)
+    model = CSC("MlpPolicy", ENV_ID, seed=0, **TINY_CSC).learn(64)
     model.save(tmp_path / "csc")
     model.save_replay_buffer(tmp_path / "buffer")
     loaded = CSC.load(tmp_path / "csc", env=make_vec_env(ENV_ID, n_envs=2, seed=1))
@@ -100,14 +92,14 @@ def test_another_number_of_envs_starts_a_new_cost_buffer(tmp_path):
 
 
 def test_missing_cost_raises():
-    model = CSC("MlpPolicy", "Pendulum-v1", seed=0, **TINY)
+    model = CSC("MlpPolicy", "Pendulum-v1", seed=0, **TINY_CSC)
     with pytest.raises(MissingCostError, match="info\\['cost'\\]"):
         model.learn(64)
 
 
 def test_discrete_action_space_is_refused():
     with pytest.raises(ValueError, match="Box action"):
-        CSC("MlpPolicy", "CartPole-v1", **TINY)
+        CSC("MlpPolicy", "CartPole-v1", **TINY_CSC)
 
 
 def test_sampler_never_executes_inadmissible_when_admissible_exists():
@@ -159,7 +151,7 @@ def test_cost_critic_is_conservative():
     the other actions, above the plain TD estimate, and keeps it low on the data."""
 
     def fitted(cql_alpha):
-        model = CSC("MlpPolicy", ENV_ID, seed=0, cql_alpha=cql_alpha, **{**TINY, "cost_learning_rate": 3e-3})
+        model = CSC("MlpPolicy", ENV_ID, seed=0, cql_alpha=cql_alpha, **{**TINY_CSC, "cost_learning_rate": 3e-3})
         rng = np.random.default_rng(0)
         obs = rng.uniform(-1, 1, size=(256, 4)).astype(np.float32)
         data_actions = rng.uniform(-1.0, -0.6, size=(256, 2)).astype(np.float32)
@@ -191,13 +183,13 @@ class _Float64Actions(gym.ActionWrapper):
 
 
 def test_float64_action_spaces_train():
-    model = CSC("MlpPolicy", _Float64Actions(gym.make(ENV_ID)), seed=0, **TINY).learn(128)
+    model = CSC("MlpPolicy", _Float64Actions(gym.make(ENV_ID)), seed=0, **TINY_CSC).learn(128)
     assert model.num_timesteps == 128
 
 
 def test_loading_parameters_leaves_the_env_action_space_alone():
     """The policy's bound buffers are copies: set_parameters must not write into the live env's space."""
-    model = CSC("MlpPolicy", ENV_ID, seed=0, **TINY)
+    model = CSC("MlpPolicy", ENV_ID, seed=0, **TINY_CSC)
     space = model.get_env().action_space
     params = model.get_parameters()
     params["policy"]["action_low"] = th.full_like(params["policy"]["action_low"], 3.0)
@@ -218,7 +210,7 @@ class _MatrixActions(gym.ActionWrapper):
 
 def test_multi_dimensional_box_actions():
     """A Box of shape (2, 2): the sampler, the cost critic and predict work on the flattened actions."""
-    model = CSC("MlpPolicy", _MatrixActions(gym.make(ENV_ID)), seed=0, **TINY).learn(128)
+    model = CSC("MlpPolicy", _MatrixActions(gym.make(ENV_ID)), seed=0, **TINY_CSC).learn(128)
     assert model.num_timesteps == 128 and model.cost_buffer.size() == 128
     obs = np.stack([model.observation_space.sample() for _ in range(3)])
     for deterministic in (False, True):
@@ -229,13 +221,13 @@ def test_multi_dimensional_box_actions():
 
 def test_rejected_first_samples_count_as_interventions():
     """With a threshold no action meets, every executed step is the sampler's argmin: an intervention each."""
-    model = CSC("MlpPolicy", ENV_ID, seed=0, **{**TINY, "cost_threshold": -1.0}).learn(64)
+    model = CSC("MlpPolicy", ENV_ID, seed=0, **{**TINY_CSC, "cost_threshold": -1.0}).learn(64)
     assert model.safety_metrics.steps == 64 and model.safety_metrics.interventions == 64
 
 
 def test_models_saved_with_sb3_rollout_buffer_still_load(tmp_path):
     """CSC saved SB3's RolloutBuffer as its rollout_buffer_class before it ran on the shared loop."""
-    CSC("MlpPolicy", ENV_ID, seed=0, **TINY).save(tmp_path / "csc")
+    CSC("MlpPolicy", ENV_ID, seed=0, **TINY_CSC).save(tmp_path / "csc")
     env = make_vec_env(ENV_ID, n_envs=1, seed=0)
     loaded = CSC.load(tmp_path / "csc", env=env, custom_objects={"rollout_buffer_class": RolloutBuffer})
     loaded.learn(64)

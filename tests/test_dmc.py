@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from tiny_hyperparams import TINY_DDPG, TINY_PPO, TINY_SPPO
+from tiny_hyperparams import TINY_ZOO
 
 from sppo_sb3 import zoo
 from sppo_sb3.envs.dmc import ACTION_REPEAT, FIG7_DMC_TASKS, INSTALL_HINT, ActionRepeat, action_repeat, dmc_id
@@ -31,11 +31,7 @@ CARTPOLE_REPEAT = 8
 CARTPOLE_EPISODE = 1000 // CARTPOLE_REPEAT
 
 # tiny networks and budgets, as rl-zoo3 --hyperparams overrides (plumbing, not learning)
-TINY: dict[str, list[str]] = {
-    "sppo": TINY_SPPO,
-    "ddpg": TINY_DDPG,
-    "ppo": TINY_PPO,
-}
+TINY: dict[str, list[str]] = {name: TINY_ZOO[name] for name in ("sppo", "ddpg", "ppo")}
 
 
 class CountingEnv(gym.Env):

@@ -17,6 +17,7 @@ import pytest
 from gymnasium.envs.classic_control.pendulum import PendulumEnv
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback
+from tiny_hyperparams import TINY_SAILR, TINY_SPPO
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3 import SPPO
@@ -34,16 +35,7 @@ from sppo_sb3.shield import (
 )
 from sppo_sb3.shield.persistence import ShieldRuleLoadError
 
-SPPO_TINY = dict(
-    learning_starts=60,
-    batch_size=16,
-    horizon=3,
-    buffer_size=5_000,
-    policy_kwargs=dict(latent_dim=8, encoder_dim=16, hidden_dim=16),
-    planner_kwargs=dict(num_samples=16, num_elites=4, iterations=2, horizon_warmup=0),
-    seed=0,
-)
-SAILR_FAST = dict(n_steps=64, batch_size=32, n_epochs=2, policy_kwargs=dict(net_arch=[16]))
+SPPO_TINY = {**TINY_SPPO, "seed": 0}
 BRAKE = PointCircleShieldingRule()
 INTERVENED = "shield_intervened"
 
@@ -199,7 +191,7 @@ class RecordInfos(BaseCallback):
 
 
 def test_sailr_executes_the_backup_where_q_is_nan() -> None:
-    model = SAILR("MlpPolicy", "SafePointCircle-v0", shield=NaNOffBackupRule(), seed=0, **SAILR_FAST)
+    model = SAILR("MlpPolicy", "SafePointCircle-v0", shield=NaNOffBackupRule(), seed=0, **TINY_SAILR)
     callback = RecordInfos()
     model.learn(64, callback=callback)
     assert all(info[INTERVENED] for info in callback.infos)
@@ -227,7 +219,7 @@ def test_sppo_shield_none_is_silent() -> None:
 
 def test_sailr_auto_on_an_env_without_spec_raises() -> None:
     with pytest.raises(ValueError, match="no spec"):
-        SAILR("MlpPolicy", PendulumEnv(), **SAILR_FAST)
+        SAILR("MlpPolicy", PendulumEnv(), **TINY_SAILR)
 
 
 @pytest.fixture
@@ -264,7 +256,7 @@ def test_load_with_a_rule_that_cannot_be_rebuilt(algo: str, unimportable_rule: A
         model = SPPO("TOLDPolicy", "SafePointCircle-v0", shield=rule, **SPPO_TINY)
     else:
         cls = SAILR
-        model = SAILR("MlpPolicy", "SafePointCircle-v0", shield=rule, **SAILR_FAST)
+        model = SAILR("MlpPolicy", "SafePointCircle-v0", shield=rule, **TINY_SAILR)
     model.save(tmp_path / "model.zip")
     forget()
     with pytest.raises(ShieldRuleLoadError, match=r"custom_objects=\{'shield_rule': YourRule\(\)\}"):

@@ -18,6 +18,7 @@ from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.vec_env import VecNormalize
+from tiny_hyperparams import QUICK_CSC, TINY_ON_POLICY
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer
@@ -32,8 +33,6 @@ from sppo_sb3.csc import CSC
 from sppo_sb3.experiments.configs import REPO_HYPERPARAMS_DIR as HYPERPARAMS_DIR
 from sppo_sb3.pdo import PDO
 from sppo_sb3.sailr import SAILR
-
-TINY = dict(net_arch=[16])
 
 
 def test_cost_gae_hand_computed() -> None:
@@ -127,7 +126,7 @@ def test_episode_cost_tracker() -> None:
 def test_missing_cost_is_a_clear_error(algo: type) -> None:
     kwargs = {"shield": None} if algo is SAILR else {}
     with pytest.warns(UserWarning, match="plain PPO") if algo is SAILR else contextlib.nullcontext():
-        model = algo("MlpPolicy", "Pendulum-v1", n_steps=64, batch_size=32, policy_kwargs=TINY, **kwargs)
+        model = algo("MlpPolicy", "Pendulum-v1", **TINY_ON_POLICY, **kwargs)
     with pytest.raises(MissingCostError, match=r"info\['cost'\]"):
         model.learn(64)
     assert model.num_timesteps == 0  # failed on the very first step
@@ -138,15 +137,13 @@ def test_wrong_buffer_or_policy_is_a_clear_error() -> None:
         PDO(
             "MlpPolicy",
             "SafePointCircle-v0",
-            n_steps=64,
-            batch_size=32,
             rollout_buffer_class=RolloutBuffer,
-            policy_kwargs=TINY,
+            **TINY_ON_POLICY,
         )
     from stable_baselines3.common.policies import ActorCriticPolicy
 
     with pytest.raises(TypeError, match="CostActorCriticPolicy"):
-        PDO(ActorCriticPolicy, "SafePointCircle-v0", n_steps=64, batch_size=32, policy_kwargs=TINY)
+        PDO(ActorCriticPolicy, "SafePointCircle-v0", **TINY_ON_POLICY)
 
 
 @pytest.mark.parametrize("algo", [PDO, CPO])
@@ -188,12 +185,8 @@ class _MatrixActions(gym.ActionWrapper):
 
 
 def _tiny(algo: type) -> dict[str, Any]:
-    """Small-budget arguments of each on-policy algorithm."""
-    kwargs: dict[str, Any] = dict(n_steps=64, batch_size=32, policy_kwargs=dict(TINY))
-    if algo is CSC:
-        kwargs.update(n_epochs=1, n_action_samples=4, cost_batch_size=16, cost_gradient_steps=2)
-        kwargs["policy_kwargs"]["cost_net_arch"] = [16]
-    return kwargs
+    """Small-budget arguments of each on-policy algorithm (the others' own update budgets at their defaults)."""
+    return QUICK_CSC if algo is CSC else TINY_ON_POLICY
 
 
 @pytest.mark.parametrize("algo", [PDO, CPO, SAILR, CSC])

@@ -8,13 +8,11 @@ import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure
+from tiny_hyperparams import TINY_PDO
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.common.lagrange import lagrange_update
 from sppo_sb3.pdo import PDO
-
-TINY = dict(net_arch=[16])
-FAST = dict(n_steps=64, batch_size=32, n_epochs=2, policy_kwargs=TINY)
 
 
 def test_lagrange_update_projected_dual_ascent() -> None:
@@ -33,7 +31,7 @@ def _rollout(model: PDO, episode_cost: float) -> None:
 
 
 def test_lambda_rises_above_the_limit_and_falls_to_zero_below() -> None:
-    model = PDO("MlpPolicy", "SafePointCircle-v0", cost_limit=0.2, lagrange_lr=0.5, **FAST)
+    model = PDO("MlpPolicy", "SafePointCircle-v0", cost_limit=0.2, lagrange_lr=0.5, **TINY_PDO)
     model.set_logger(configure(None, []))
     lambdas = [model.lagrange_multiplier]
     for _ in range(4):
@@ -47,7 +45,7 @@ def test_lambda_rises_above_the_limit_and_falls_to_zero_below() -> None:
 
 
 def test_policy_advantage_is_the_lagrangian_combination() -> None:
-    model = PDO("MlpPolicy", "SafePointCircle-v0", lagrange_init=3.0, lagrange_lr=1e-9, cost_limit=0.0, **FAST)
+    model = PDO("MlpPolicy", "SafePointCircle-v0", lagrange_init=3.0, lagrange_lr=1e-9, cost_limit=0.0, **TINY_PDO)
     seen = {}
 
     class Grab(BaseCallback):
@@ -66,7 +64,7 @@ def test_policy_advantage_is_the_lagrangian_combination() -> None:
 
 
 def test_pdo_smoke_save_load_predict(tmp_path) -> None:
-    model = PDO("MlpPolicy", "SafePointCircle-v0", seed=0, tensorboard_log=str(tmp_path / "tb"), **FAST)
+    model = PDO("MlpPolicy", "SafePointCircle-v0", seed=0, tensorboard_log=str(tmp_path / "tb"), **TINY_PDO)
     model.learn(256, progress_bar=True)
     assert model.num_timesteps == 256
     assert model.safety_metrics.steps == 256
@@ -84,7 +82,7 @@ def test_pdo_smoke_save_load_predict(tmp_path) -> None:
 
 def test_pdo_n_envs_and_resume(tmp_path) -> None:
     env = make_vec_env("SafePointCircle-v0", n_envs=2, seed=0)
-    model = PDO("MlpPolicy", env, seed=0, **FAST)
+    model = PDO("MlpPolicy", env, seed=0, **TINY_PDO)
     model.learn(256)
     assert model.safety_metrics.steps == 256 and model.rollout_buffer.costs.shape == (64, 2)  # costs are not flattened
     model.save(tmp_path / "pdo2")
@@ -97,7 +95,7 @@ def test_pdo_n_envs_and_resume(tmp_path) -> None:
 
 def test_pdo_seed_is_reproducible() -> None:
     def run() -> np.ndarray:
-        model = PDO("MlpPolicy", "SafePointCircle-v0", seed=3, **FAST)
+        model = PDO("MlpPolicy", "SafePointCircle-v0", seed=3, **TINY_PDO)
         model.learn(128)
         return th.nn.utils.parameters_to_vector(model.policy.parameters()).detach().numpy()
 
@@ -105,6 +103,6 @@ def test_pdo_seed_is_reproducible() -> None:
 
 
 def test_lagrange_init_sets_the_initial_multiplier() -> None:
-    assert PDO("MlpPolicy", "SafePointCircle-v0", lagrange_init=2.0, **FAST).lagrange_multiplier == 2.0
+    assert PDO("MlpPolicy", "SafePointCircle-v0", lagrange_init=2.0, **TINY_PDO).lagrange_multiplier == 2.0
     with pytest.raises(ValueError, match="lagrange_init must be >= 0"):
-        PDO("MlpPolicy", "SafePointCircle-v0", lagrange_init=-1.0, **FAST)
+        PDO("MlpPolicy", "SafePointCircle-v0", lagrange_init=-1.0, **TINY_PDO)

@@ -4,6 +4,7 @@ import math
 
 import pytest
 import torch as th
+from tiny_hyperparams import TINY_MPPI, TINY_TOLD
 
 from sppo_sb3.sppo.planner import (
     MPPIConfig,
@@ -20,7 +21,7 @@ from sppo_sb3.sppo.policies import ELU, TOLD
 
 def tiny_model(obs_dim: int = 3, action_dim: int = 2) -> TOLD:
     th.manual_seed(0)
-    return TOLD(obs_dim, action_dim, latent_dim=8, encoder_dim=16, hidden_dim=16)
+    return TOLD(obs_dim, action_dim, **TINY_TOLD)
 
 
 def test_refit_gaussian_matches_hand_computed_weights():
@@ -105,7 +106,7 @@ def test_deterministic_plans_are_a_pure_function_of_obs_state_and_generator():
 
 def test_mppi_is_a_function_of_its_noise():
     """All randomness enters through PlanNoise: the same noise gives the same plan, whatever torch's RNG does."""
-    model, cfg = tiny_model(), MPPIConfig(num_samples=16, num_elites=4, iterations=2, horizon=3)
+    model, cfg = tiny_model(), MPPIConfig(**TINY_MPPI, horizon=3)
     noise = draw_noise(cfg, 2, 3, 2, False, None, th.device("cpu"))
     obs, warm, min_std = th.randn(2, 3), th.zeros(2, 3, 2), th.tensor(0.1)
     with th.no_grad():
@@ -134,7 +135,7 @@ def test_planner_prefers_high_reward_actions():
                 p.zero_()
         model.reward[0].weight[:, -1] = 1.0  # the action's input column
         model.reward[0].bias.fill_(1.0)
-        model.reward[2].weight.copy_(th.eye(16))  # hidden = a + 1 >= 0 passes both ELUs unchanged
+        model.reward[2].weight.copy_(th.eye(TINY_TOLD["hidden_dim"]))  # hidden = a + 1 >= 0 passes both ELUs unchanged
         model.reward[-1].weight.fill_(0.1)
     planner = MPPIPlanner(MPPIConfig(num_samples=64, num_elites=8, iterations=4, horizon=2, horizon_warmup=0), 1)
     th.manual_seed(0)

@@ -10,13 +10,11 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+from tiny_hyperparams import TINY_SAILR
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.sailr import SAILR
 from sppo_sb3.shield import PointCircleShieldingRule, ShieldWrapper
-
-TINY = dict(net_arch=[16])
-FAST = dict(n_steps=64, batch_size=32, n_epochs=2, policy_kwargs=TINY)
 
 
 class GrabRollout(BaseCallback):
@@ -41,7 +39,7 @@ class GrabRollout(BaseCallback):
 
 def test_no_intervened_action_is_ever_executed() -> None:
     recorder = RecordExecuted(gym.make("SafePointCircle-v0"))
-    model = SAILR("MlpPolicy", recorder, seed=0, **FAST)
+    model = SAILR("MlpPolicy", recorder, seed=0, **TINY_SAILR)
     grab = GrabRollout()
     model.learn(512, callback=grab)
     rule = PointCircleShieldingRule()
@@ -60,7 +58,7 @@ def test_no_intervened_action_is_ever_executed() -> None:
 
 
 def test_backup_keeps_control_after_the_first_intervention_of_an_episode() -> None:
-    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=1, **FAST)
+    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=1, **TINY_SAILR)
     grab = GrabRollout()
     model.learn(1024, callback=grab)
     intervened = np.array([info[0]["shield_intervened"] for info in grab.infos])
@@ -76,7 +74,7 @@ def test_backup_keeps_control_after_the_first_intervention_of_an_episode() -> No
 
 
 def test_absorbing_transition_and_post_intervention_mask() -> None:
-    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=1, n_steps=256, batch_size=64, n_epochs=1, policy_kwargs=TINY)
+    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=1, **{**TINY_SAILR, "n_steps": 256, "batch_size": 64, "n_epochs": 1})
     grab = GrabRollout(extra=("costs", "cost_advantages", "cost_values"))
     model.learn(1024, callback=grab)
     absorbing_cost = 1.0 / (1.0 - model.gamma)
@@ -106,18 +104,18 @@ def test_absorbing_transition_and_post_intervention_mask() -> None:
 
 
 def test_policy_follows_the_penalised_advantage(monkeypatch: pytest.MonkeyPatch) -> None:
-    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=2, penalty=2.0, **FAST)
+    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=2, penalty=2.0, **TINY_SAILR)
     seen: list[np.ndarray] = []
     monkeypatch.setattr(PPO, "train", lambda self: seen.append(self.rollout_buffer.advantages.copy()))
     grab = GrabRollout(extra=("cost_advantages",))
-    model.learn(FAST["n_steps"], callback=grab)
+    model.learn(TINY_SAILR["n_steps"], callback=grab)
     rollout = grab.rollouts[0]
     expected = (rollout["advantages"] - 2.0 * rollout["cost_advantages"]) / 3.0
     np.testing.assert_allclose(seen[0], expected, rtol=1e-5, atol=1e-6)
 
 
 def test_sailr_train_skips_fully_masked_rollout() -> None:
-    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=0, **FAST)
+    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=0, **TINY_SAILR)
     model.learn(64)
     model.rollout_buffer.masks[:] = 0.0  # a rollout made only of post-intervention steps
     model.rollout_buffer.generator_ready = False
@@ -127,7 +125,7 @@ def test_sailr_train_skips_fully_masked_rollout() -> None:
 
 
 def test_sailr_smoke_save_load_predict(tmp_path) -> None:
-    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=0, tensorboard_log=str(tmp_path / "tb"), **FAST)
+    model = SAILR("MlpPolicy", "SafePointCircle-v0", seed=0, tensorboard_log=str(tmp_path / "tb"), **TINY_SAILR)
     model.learn(256, progress_bar=True)
     assert model.safety_metrics.steps == 256
     model.save(tmp_path / "sailr")
@@ -144,7 +142,7 @@ def test_sailr_smoke_save_load_predict(tmp_path) -> None:
 def test_sailr_n_envs_and_user_rule() -> None:
     env = make_vec_env("SafePointCircle-v0", n_envs=2, seed=0)
     rule = PointCircleShieldingRule()
-    model = SAILR("MlpPolicy", env, shield=rule, seed=0, **FAST)
+    model = SAILR("MlpPolicy", env, shield=rule, seed=0, **TINY_SAILR)
     assert model.shield_rule is rule
     assert all(env.env_is_wrapped(ShieldWrapper))
     model.learn(256)
@@ -155,13 +153,13 @@ def test_sailr_n_envs_and_user_rule() -> None:
 
 def test_sailr_shield_errors() -> None:
     with pytest.raises(ValueError, match="No shielding rule is registered"):
-        SAILR("MlpPolicy", "Pendulum-v1", **FAST)
+        SAILR("MlpPolicy", "Pendulum-v1", **TINY_SAILR)
     with pytest.raises(ValueError, match="weight κ >= 0 of the intervention cost"):
-        SAILR("MlpPolicy", "SafePointCircle-v0", penalty=-1.0, **FAST)
+        SAILR("MlpPolicy", "SafePointCircle-v0", penalty=-1.0, **TINY_SAILR)
     env = make_vec_env("SafePointCircle-v0", n_envs=1, vec_env_cls=SubprocVecEnv, vec_env_kwargs=dict(start_method="fork"))
     try:
         with pytest.raises(TypeError, match="wrapper_class"):
-            SAILR("MlpPolicy", env, **FAST)
+            SAILR("MlpPolicy", env, **TINY_SAILR)
     finally:
         env.close()
 
@@ -169,6 +167,6 @@ def test_sailr_shield_errors() -> None:
 def test_sailr_accepts_prewrapped_envs() -> None:
     rule = PointCircleShieldingRule()
     env = DummyVecEnv([lambda: ShieldWrapper(gym.make("SafePointCircle-v0"), rule)])
-    model = SAILR("MlpPolicy", env, shield=None, **FAST)
+    model = SAILR("MlpPolicy", env, shield=None, **TINY_SAILR)
     assert model.shield_rule is rule
     model.learn(64)

@@ -14,6 +14,7 @@ import torch as th
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from stable_baselines3.common.vec_env import DummyVecEnv
+from tiny_hyperparams import TINY_ROLLOUT
 
 from sppo_sb3.common.costs import shaped_cost
 from sppo_sb3.common.keys import ADVANTAGE_KEY, COST_KEY, PROPOSED_ACTION_KEY
@@ -495,7 +496,7 @@ def test_auto_rule_is_built_from_the_env_parameters(env_id: str, alpha: float, r
 
 
 def test_auto_rule_of_an_algorithm_takes_the_env_alpha() -> None:
-    model = SAILR("MlpPolicy", gym.make("SafePointCircle-v0", alpha=0.3), shield="auto", n_steps=64, batch_size=32)
+    model = SAILR("MlpPolicy", gym.make("SafePointCircle-v0", alpha=0.3), shield="auto", **TINY_ROLLOUT)
     assert isinstance(model.shield_rule, PointCircleShieldingRule) and model.shield_rule.alpha == 0.3
 
 

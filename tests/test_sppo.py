@@ -15,6 +15,7 @@ import torch as th
 from stable_baselines3 import SAC
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import KVWriter, Logger
+from tiny_hyperparams import TINY_SPPO
 
 from sppo_sb3 import SPPO
 from sppo_sb3.common.costs import MissingCostError
@@ -23,18 +24,9 @@ from sppo_sb3.sppo.buffers import ShieldedReplayBuffer
 from sppo_sb3.sppo.optim import init_optimizer_state
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, topo_update
 
-TINY = dict(
-    learning_starts=60,
-    batch_size=16,
-    horizon=3,
-    buffer_size=5_000,
-    policy_kwargs=dict(latent_dim=8, encoder_dim=16, hidden_dim=16),
-    planner_kwargs=dict(num_samples=16, num_elites=4, iterations=2, horizon_warmup=0),
-)
-
 
 def tiny_sppo(env="SafePointCircle-v0", **overrides) -> SPPO:
-    return SPPO("TOLDPolicy", env, **{**TINY, "seed": 0, **overrides})
+    return SPPO("TOLDPolicy", env, **{**TINY_SPPO, "seed": 0, **overrides})
 
 
 def test_smoke_learn_predict_and_metrics():
@@ -320,7 +312,7 @@ def test_n_updates_is_logged_as_sac_logs_it(train_freq) -> None:
     logged = {}
     schedule = dict(learning_starts=50, gradient_steps=-1, train_freq=train_freq, batch_size=8, seed=0)
     sac_kwargs = {**schedule, "policy_kwargs": dict(net_arch=[8])}
-    for algo, kwargs in ((SPPO, {**TINY, **schedule, "shield": None}), (SAC, sac_kwargs)):
+    for algo, kwargs in ((SPPO, {**TINY_SPPO, **schedule, "shield": None}), (SAC, sac_kwargs)):
         recorder = RecordDumps()
         model = algo("TOLDPolicy" if algo is SPPO else "MlpPolicy", "Pendulum-v1", **kwargs)
         model.set_logger(Logger(None, [recorder]))

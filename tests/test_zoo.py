@@ -20,7 +20,7 @@ import optuna
 import pandas as pd
 import pytest
 import yaml
-from tiny_hyperparams import TINY_SPPO
+from tiny_hyperparams import TINY_ROLLOUT, TINY_ZOO
 
 from sppo_sb3 import zoo
 from sppo_sb3.algorithms import ALGORITHMS, DISPLAY_ORDER, ZOO_BASELINES, Algorithm
@@ -32,29 +32,7 @@ ENV = "SafePointCircle-v0"
 SHORT_EPISODES = ["--env-kwargs", "max_episode_steps:50"]
 
 # tiny networks and budgets per algorithm, as rl-zoo3 --hyperparams overrides
-TINY: dict[str, list[str]] = {
-    "sppo": TINY_SPPO,
-    "pdo": ["n_steps:64", "batch_size:32", "n_epochs:1", "policy_kwargs:dict(net_arch=[8], cost_net_arch=[8])"],
-    "sailr": ["n_steps:64", "batch_size:32", "n_epochs:1", "policy_kwargs:dict(net_arch=[8])"],
-    "cpo": [
-        "n_steps:64",
-        "batch_size:32",
-        "n_critic_updates:1",
-        "cg_max_steps:3",
-        "policy_kwargs:dict(net_arch=[8], cost_net_arch=[8])",
-    ],
-    "csc": [
-        "n_steps:64",
-        "batch_size:32",
-        "n_epochs:1",
-        "n_action_samples:4",
-        "cost_buffer_size:1000",
-        "cost_batch_size:16",
-        "cost_gradient_steps:2",
-        "n_cost_baseline_samples:2",
-        "policy_kwargs:dict(net_arch=[8], cost_net_arch=[8])",
-    ],
-}
+TINY: dict[str, list[str]] = {name: TINY_ZOO[name] for name in ("sppo", "pdo", "sailr", "cpo", "csc")}
 ALGOS = sorted(TINY)
 
 
@@ -261,7 +239,7 @@ def test_violation_budget_prunes(tmp_path: Path) -> None:
     trial.set_user_attr("violation_budget", 2.0)
     trial.set_user_attr("violation_budget_mode", "prune")
     eval_env = cost_monitored_make_vec_env(ENV, n_envs=1, env_kwargs={"max_episode_steps": 50})
-    model = PDO("MlpPolicy", ENV, n_steps=64, batch_size=32, policy_kwargs={"net_arch": [8]})
+    model = PDO("MlpPolicy", ENV, **TINY_ROLLOUT, policy_kwargs={"net_arch": [8]})
     callback = callback_cls(eval_env, trial, eval_freq=1000)
     callback.init_callback(model)
     assert callback.on_step()
@@ -297,7 +275,7 @@ def test_episode_cost_info_and_eval_callback(tmp_path: Path) -> None:
     from sppo_sb3.pdo import PDO
 
     eval_env = cost_monitored_make_vec_env(ENV, n_envs=2, env_kwargs={"max_episode_steps": 20})
-    model = PDO("MlpPolicy", ENV, n_steps=32, batch_size=32, policy_kwargs={"net_arch": [8]})
+    model = PDO("MlpPolicy", ENV, **{**TINY_ROLLOUT, "n_steps": 32}, policy_kwargs={"net_arch": [8]})
     model.set_logger(Logger(folder=None, output_formats=[]))
     callback = CostEvalCallback(eval_env, n_eval_episodes=3, eval_freq=1, log_path=str(tmp_path), verbose=0)
     callback.init_callback(model)

@@ -49,9 +49,9 @@ class MPPIConfig:
     :param gamma: discount of eq. 10.
     :param max_rows: trajectories scored per network call: the ``E·N`` samples of many envs are cut into equal
         blocks of at most this many rows, so each block's activations stay in cache (64 envs × 512 samples of 512-wide
-        activations are 64 MB; the unblocked batch is slower per action, see ``docs/modules/sppo.md``).
+        activations are 64 MB; the unblocked batch is slower per action, see ``docs/results.md``).
     :param dtype: ``"float32"`` or ``"bfloat16"``: precision of the planner's hidden layers. bf16 runs on AMX
-        (recent Xeon CPUs) and tensor cores faster (``docs/modules/sppo.md``); reward and value heads stay fp32, so
+        (recent Xeon CPUs) and tensor cores faster (``docs/results.md``); reward and value heads stay fp32, so
         returns and elite weights keep fp32 precision.
     """
 

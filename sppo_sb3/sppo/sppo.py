@@ -81,12 +81,12 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
     :param absorbing: what ``B̃`` records after an intervention. ``"terminate"`` is the paper's ``M̃`` (nothing more of
         the episode); ``"restart"`` (default) makes every intervention an absorbing terminal and restarts ``B̃`` at the
         next real state. "terminate" keeps only one shielded example per episode, so the planner learns slowly which
-        proposals the shield rejects; the two are compared in ``docs/modules/sppo.md`` (Comments).
+        proposals the shield rejects; the two are compared in ``docs/results.md`` (the absorbing MDP).
     :param absorbing_penalty: ``R̃`` of eq. 7; defaults to the rule's ``penalty``.
     :param termination_model: give TOLD a termination head, trained on ``B̃``'s terminal flags (absorbing
         interventions and real terminations, not time-limit truncations), and plan with it: eq. 10 adds no reward and
         no value after a predicted absorbing step. ``False`` (default) is TD-MPC's model and the paper's, which plans
-        as if no episode ended; ``docs/modules/sppo.md`` (Results) has the benchmark that chose the default.
+        as if no episode ended; ``docs/results.md`` (the absorbing MDP) has the benchmark that chose the default.
     :param refine_shield: Alg. 1 line 12, ``G ← UpdateShieldingRule(B)``: fit the rule's ``Q̄`` on the real
         transitions of ``B`` during :meth:`train` (as many minibatches of ``batch_size`` as TOPO updates), with the
         backup's targets on Definition 2's scale (:func:`~sppo_sb3.shield.learned.definition2_step_costs`). Needs a
@@ -116,8 +116,8 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
     :param device: torch device: ``"cpu"``, ``"cuda"`` or ``"auto"`` (CUDA where available).
     :param _init_setup_model: build the networks now.
 
-    Measured effects of ``absorbing``, of the planner's ``max_rows`` and ``dtype`` and of TOLD's ELU are listed in
-    ``docs/modules/sppo.md`` (Comments), with the deviations from the paper.
+    Measured effects of ``absorbing``, of the planner's ``max_rows`` and ``dtype`` and of TOLD's ELU are in
+    ``docs/results.md``; the deviations from the paper in ``docs/modules/sppo.md`` (Comments).
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"TOLDPolicy": TOLDPolicy, "MlpPolicy": TOLDPolicy}
@@ -463,8 +463,9 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         path, with its messages: ``BasePolicy.predict``'s check for a Gym ``(obs, info)`` tuple, then
         ``obs_to_tensor``'s for the shape."""
         if isinstance(observation, tuple):
-            self.policy.predict(observation)  # SB3's check of the Gym/VecEnv API mix-up raises its own message
+            self.policy.predict(observation)  # type: ignore[arg-type]  # SB3's check of the Gym/VecEnv API mix-up
         obs_tensor, vectorized = self.policy.obs_to_tensor(observation)
+        assert isinstance(obs_tensor, th.Tensor)  # TOLDPolicy's observation space is a Box
         return obs_tensor.cpu().numpy().astype(np.float32, copy=False), vectorized
 
     def _warm_start_from_state(
