@@ -11,12 +11,18 @@ and ``HalfCheetah-v5`` at TD-MPC size (the class defaults).
 
     python scripts/bench_training.py                                    # all three envs
     python scripts/bench_training.py --envs Pendulum-v1 --steps 1000    # a quick look
+    python scripts/bench_training.py --envs Pendulum-v1 SafePointCircle-v0 --torch-adam
+
+``--torch-adam`` adds SPPO compiled with PyTorch's own Adam (``capturable=True``, traced into the compiled update, with
+and without ``foreach``) in place of ``sppo_sb3/sppo/optim.py``'s tensor-code step: the measurement that module rests on.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import time
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +32,7 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
+import sppo_sb3.sppo.topo as topo
 from sppo_sb3 import SPPO
 from sppo_sb3.zoo import eval_kwargs_strings, eval_yml_string
 
@@ -80,12 +87,46 @@ def measure(model: BaseAlgorithm, steps: int, learning_starts: int) -> tuple[flo
     return timer.result()
 
 
+def torch_adam_step(optimizer: th.optim.Optimizer, grads: Sequence[th.Tensor], lr: th.Tensor) -> None:
+    """PyTorch's own ``optimizer.step()`` on ``grads``, in place of the tensor-code step of ``sppo/optim.py``."""
+    params = [p for group in optimizer.param_groups for p in group["params"]]
+    for param, grad in zip(params, grads):
+        param.grad = grad
+    optimizer.step()
+    for param in params:
+        param.grad = None
+
+
+@contextlib.contextmanager
+def torch_adam_in_update() -> Iterator[None]:
+    """TOPO's update steps its optimisers with :func:`torch_adam_step` for a while."""
+    original = topo.apply_gradients
+    topo.apply_gradients = torch_adam_step
+    try:
+        yield
+    finally:
+        topo.apply_gradients = original
+
+
+def torch_adam_rows(env_id: str, kwargs: dict[str, Any], steps: int, starts: int, device: str) -> list[tuple[str, float]]:
+    """Env steps/s of SPPO compiled with PyTorch's Adam (``capturable=True``), without and with ``foreach``."""
+    rows = []
+    for foreach in (False, True):
+        policy_kwargs = {**(kwargs.get("policy_kwargs") or {}), "optimizer_kwargs": dict(capturable=True, foreach=foreach)}
+        settings = {**kwargs, "policy_kwargs": policy_kwargs}
+        with torch_adam_in_update():
+            model = SPPO("TOLDPolicy", env_id, seed=0, device=device, compile=True, **settings)
+            rows.append((f"torch Adam, foreach={foreach}", measure(model, steps, starts)[0]))
+    return rows
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--envs", nargs="+", default=list(DEFAULT_STEPS))
     parser.add_argument("--steps", type=int, default=None, help="timed env steps after the warm-up (default: per env)")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: all cores)")
     parser.add_argument("--device", default="auto")
+    parser.add_argument("--torch-adam", action="store_true", help="also SPPO compiled with PyTorch's Adam (capturable)")
     args = parser.parse_args()
     if args.threads:
         th.set_num_threads(args.threads)
@@ -102,6 +143,9 @@ def main() -> None:
         total_compile = compiled_model.compile_stats["seconds"]
         figures = (sac, eager, compiled, compiled / sac, eager / sac, total_compile)
         print(f"{env_id:20} {steps:6d} " + " ".join(f"{x:13.2f}" for x in figures), flush=True)
+        if args.torch_adam:
+            for name, rate in torch_adam_rows(env_id, kwargs, steps, starts, args.device):
+                print(f"{'':20} {name}: {rate:.2f} env steps/s ({rate / compiled:.2f}x SPPO compiled)", flush=True)
 
 
 if __name__ == "__main__":

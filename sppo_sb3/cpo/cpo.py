@@ -42,33 +42,10 @@ from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
 from sppo_sb3.common.keys import N_UPDATES_LOG_KEY
 from sppo_sb3.common.lagrange import DEFAULT_COST_LIMIT
 from sppo_sb3.common.on_policy import SafeOnPolicyMixin
+from sppo_sb3.cpo.dual import CPO_CASES, CPOSolution, cpo_dual_solution
 from sppo_sb3.cpo.policies import MlpPolicy
 
 SelfCPO = TypeVar("SelfCPO", bound="CPO")
-
-#: integer codes of :attr:`CPOSolution.case`, for the ``train/cpo_case`` log
-CPO_CASES = {"infeasible": 0, "constrained": 1, "unconstrained": 2}
-
-
-@dataclass(frozen=True)
-class CPOSolution:
-    """Solution of the CPO step problem, as the step ``x* = coef_g·H⁻¹g + coef_b·H⁻¹b``.
-
-    :param case: ``"unconstrained"``: the linearised constraint does not cut the trust region, TRPO's step;
-        ``"constrained"``: the dual solution ``x* = (H⁻¹g - ν*·H⁻¹b) / λ*`` (``ν*`` may still be 0);
-        ``"infeasible"``: no point of the trust region satisfies the constraint, recovery step ``-sqrt(2δ/s)·H⁻¹b``
-        (zero when ``b = 0``: nothing decreases the cost to first order).
-    :param lam: the dual variable ``λ*`` of the trust region (``nan`` in the infeasible case).
-    :param nu: the dual variable ``ν*`` of the cost constraint (``nan`` in the infeasible case).
-    :param coef_g: coefficient of ``H⁻¹g`` in the step.
-    :param coef_b: coefficient of ``H⁻¹b`` in the step.
-    """
-
-    case: str
-    lam: float
-    nu: float
-    coef_g: float
-    coef_b: float
 
 
 @dataclass(frozen=True)
@@ -103,91 +80,6 @@ class CPOSurrogates:
     reward: th.Tensor
     cost: th.Tensor
     kl: th.Tensor
-
-
-def cpo_dual_solution(q: float, r: float, s: float, c: float, delta: float, eps: float = 1e-8) -> CPOSolution:
-    """Closed-form solution of CPO's step problem through its dual (Achiam et al. 2017, eq. 10 and Appendix 10.2).
-
-    Problem: ``max_x gᵀx  s.t.  c + bᵀx <= 0,  ½ xᵀHx <= δ``, with ``q = gᵀH⁻¹g``, ``r = gᵀH⁻¹b``, ``s = bᵀH⁻¹b``.
-    The dual function (minimised over ``λ >= 0, ν >= 0``; Achiam's dual is its negative) is
-    ``D(λ, ν) = (q - 2νr + ν²s) / (2λ) - νc + λδ`` and the primal solution is ``x* = (H⁻¹g - ν*·H⁻¹b) / λ*``.
-    For fixed ``λ`` the best ``ν`` is ``ν(λ) = max(0, (λc + r) / s)``, which splits ``λ >= 0`` in two:
-
-    - ``Λ_a = {λc + r > 0}`` (``ν > 0``): ``D_a(λ) = A / (2λ) + λB/2 - rc/s``, ``A = q - r²/s``, ``B = 2δ - c²/s``,
-      minimised at ``λ = sqrt(A / B)``;
-    - ``Λ_b = {λc + r <= 0}`` (``ν = 0``): ``D_b(λ) = q / (2λ) + λδ``, minimised at ``λ = sqrt(q / (2δ))``.
-
-    Each unconstrained minimiser is projected onto its interval and the better of the two is ``λ*``. Before that,
-    the two degenerate cases of Achiam's Section 6.2: if ``c > 0`` and ``B < 0`` the trust region holds no
-    feasible point (``c - sqrt(2δs) > 0``): recovery step ``x* = -sqrt(2δ/s)·H⁻¹b``; if ``c < 0`` and ``B < 0`` the
-    constraint cannot bind inside the trust region: TRPO's step ``x* = sqrt(2δ/q)·H⁻¹g``.
-
-    :param q: ``gᵀH⁻¹g >= 0``.
-    :param r: ``gᵀH⁻¹b``.
-    :param s: ``bᵀH⁻¹b >= 0``.
-    :param c: constraint value ``J_C(π_k) - d`` (in the units of the cost surrogate).
-    :param delta: trust-region size ``δ > 0`` (the KL bound; the trust region is ``½ xᵀHx <= δ``).
-    :param eps: threshold below which ``q``, ``s``, ``λ`` count as 0.
-    :return: the dual variables and the step's coefficients.
-    """
-    q, r, s, c, delta = float(q), float(r), float(s), float(c), float(delta)
-    if delta <= 0:
-        raise ValueError(f"The trust-region size delta must be > 0, got {delta}.")
-    q, s = max(q, 0.0), max(s, 0.0)
-
-    def trpo_step() -> CPOSolution:
-        if q <= eps:
-            return CPOSolution("unconstrained", float("inf"), 0.0, 0.0, 0.0)
-        lam = math.sqrt(q / (2.0 * delta))
-        return CPOSolution("unconstrained", lam, 0.0, 1.0 / lam, 0.0)
-
-    if s <= eps:  # no first-order cost information: the linearised constraint is just c <= 0
-        return trpo_step() if c <= 0 else CPOSolution("infeasible", float("nan"), float("nan"), 0.0, 0.0)
-    big_b = 2.0 * delta - c * c / s
-    if c > 0 and big_b < 0:
-        return CPOSolution("infeasible", float("nan"), float("nan"), 0.0, -math.sqrt(2.0 * delta / s))
-    if c < 0 and big_b < 0:
-        return trpo_step()
-
-    big_a = max(q - r * r / s, 0.0)
-    if big_a <= 1e-10 * q:
-        # g ∥ b in the H-metric (A = 0): the optimum lies on the line H⁻¹b; solved directly, since the general
-        # formula would divide by λ* = sqrt(A/B) = 0 and cancel two huge terms
-        if r > 0 and -c / s < math.sqrt(2.0 * delta / s):  # the constraint, not the trust region, stops the step
-            return CPOSolution("constrained", 0.0, r / s, 0.0, -c / s)
-        return trpo_step()
-    # intervals Λ_a = {λ >= 0: λc + r > 0} and Λ_b = {λ >= 0: λc + r <= 0}, as (low, high) or None when empty
-    inf = float("inf")
-    if c > 0:
-        split = -r / c
-        lam_a_set: tuple[float, float] | None = (max(0.0, split), inf)
-        lam_b_set = (0.0, split) if split >= 0 else None
-    elif c < 0:
-        split = -r / c
-        lam_a_set = (0.0, split) if split > 0 else None
-        lam_b_set = (max(0.0, split), inf)
-    else:
-        lam_a_set, lam_b_set = ((0.0, inf), None) if r > 0 else (None, (0.0, inf))
-
-    def dual_a(lam: float) -> float:
-        return big_a / (2.0 * lam) + lam * big_b / 2.0 - r * c / s
-
-    def dual_b(lam: float) -> float:
-        return q / (2.0 * lam) + lam * delta
-
-    candidates: list[tuple[float, float]] = []  # (dual value, λ)
-    if lam_a_set is not None:
-        lam_a = math.sqrt(big_a / big_b) if big_b > eps else inf
-        lam_a = min(max(lam_a, lam_a_set[0], eps), lam_a_set[1])
-        candidates.append((dual_a(lam_a), lam_a))
-    if lam_b_set is not None:
-        lam_b = min(max(math.sqrt(q / (2.0 * delta)), lam_b_set[0], eps), lam_b_set[1])
-        candidates.append((dual_b(lam_b), lam_b))
-    _, lam = min(candidates)
-    if not math.isfinite(lam):  # B = 0 and Λ_a unbounded: the trust region touches the constraint at one point
-        return CPOSolution("constrained", inf, inf, 0.0, -c / s)
-    nu = max(0.0, (lam * c + r) / s)
-    return CPOSolution("constrained", lam, nu, 1.0 / lam, -nu / lam)
 
 
 class CPO(SafeOnPolicyMixin, TRPO):
