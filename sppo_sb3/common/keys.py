@@ -11,6 +11,8 @@ COST_KEY = "cost"
 SHAPED_COST_KEY = "shaped_cost"
 #: ``SafeHalfCheetahHeight-v1``: the height of the front thigh after the step
 HEIGHT_KEY = "fthigh_height"
+#: the velocity tasks (``sppo_sb3/Safety<Robot>Velocity-v1``): the step's constrained velocity (x velocity, or xy speed)
+VELOCITY_KEY = "velocity"
 #: the shield replaced the proposal by the backup's action (eq. 12)
 INTERVENED_KEY = "shield_intervened"
 #: the action the learner proposed

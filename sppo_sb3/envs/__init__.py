@@ -1,10 +1,12 @@
-"""The paper's tasks, registered with gymnasium on ``import sppo_sb3``: the constrained ones and Fig. 7's dm_control
-suite tasks (``DMC-<domain>-<task>-v0``, :mod:`sppo_sb3.envs.dmc`; they need the ``dmc`` extra to be made)."""
+"""The paper's tasks, registered with gymnasium on ``import sppo_sb3``: the constrained ones, Fig. 7's dm_control
+suite tasks (``DMC-<domain>-<task>-v0``, :mod:`sppo_sb3.envs.dmc`; they need the ``dmc`` extra to be made) and
+Safety-Gymnasium's velocity tasks (``sppo_sb3/Safety<Robot>Velocity-v1``, :mod:`sppo_sb3.envs.velocity`)."""
 
 from gymnasium.envs.registration import register, registry
 
 from sppo_sb3.envs.dmc import register_dmc_tasks
 from sppo_sb3.envs.point_circle import PointParams, SafePointCircleEnv
+from sppo_sb3.envs.velocity import MAX_EPISODE_STEPS, VELOCITY_TASKS
 
 if "SafePointCircle-v0" not in registry:
     register(id="SafePointCircle-v0", entry_point="sppo_sb3.envs.point_circle:SafePointCircleEnv", max_episode_steps=500)
@@ -14,6 +16,14 @@ if "SafeHalfCheetahHeight-v1" not in registry:
         entry_point="sppo_sb3.envs.half_cheetah_height:SafeHalfCheetahHeightEnv",
         max_episode_steps=1000,
     )
+for _task in VELOCITY_TASKS:
+    if _task.env_id not in registry:
+        register(
+            id=_task.env_id,
+            entry_point=_task.entry_point,
+            max_episode_steps=MAX_EPISODE_STEPS,
+            reward_threshold=_task.reward_threshold,
+        )
 register_dmc_tasks()
 
 __all__ = ["PointParams", "SafePointCircleEnv"]
