@@ -6,13 +6,11 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
-from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.logger import configure
 from tiny_hyperparams import TINY_CSC
 
 import sppo_sb3  # noqa: F401  (registers SafePointCircle-v0)
-from sppo_sb3.common.cost_buffer import CostRolloutBuffer
 from sppo_sb3.common.costs import MissingCostError
 from sppo_sb3.csc import CSC, CSCPolicy, rejection_sample_actions
 
@@ -223,12 +221,3 @@ def test_rejected_first_samples_count_as_interventions():
     """With a threshold no action meets, every executed step is the sampler's argmin: an intervention each."""
     model = CSC("MlpPolicy", ENV_ID, seed=0, **{**TINY_CSC, "cost_threshold": -1.0}).learn(64)
     assert model.safety_metrics.steps == 64 and model.safety_metrics.interventions == 64
-
-
-def test_models_saved_with_sb3_rollout_buffer_still_load(tmp_path):
-    """CSC saved SB3's RolloutBuffer as its rollout_buffer_class before it ran on the shared loop."""
-    CSC("MlpPolicy", ENV_ID, seed=0, **TINY_CSC).save(tmp_path / "csc")
-    env = make_vec_env(ENV_ID, n_envs=1, seed=0)
-    loaded = CSC.load(tmp_path / "csc", env=env, custom_objects={"rollout_buffer_class": RolloutBuffer})
-    loaded.learn(64)
-    assert isinstance(loaded.rollout_buffer, CostRolloutBuffer) and loaded.safety_metrics.steps == 64
