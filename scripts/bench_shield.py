@@ -1,10 +1,12 @@
-"""Shield benchmark: the shields' cost per env step, the Half-Cheetah rule on a real training run's states.
+"""Shield benchmark: the shields' cost per env step, a MuJoCo task's rule on a real training run's states.
 
 Runs, in one process:
 
-- ``replay``: the observations and proposed actions of a real shielded training run on ``SafeHalfCheetahHeight-v1``
-  (SPPO at the small configuration of ``hyperparams/small/sppo.yml``, or SAILR at ``hyperparams/sailr.yml``; recorded
-  once into ``--states``, then reused) are replayed through the Half-Cheetah rule, certified (the default) and full
+- ``replay``: the observations and proposed actions of a real shielded training run on ``--task`` (a MuJoCo task with
+  a registered :class:`~sppo_sb3.shield.MujocoShieldingRule`: ``SafeHalfCheetahHeight-v1`` by default, or a velocity
+  task such as ``sppo_sb3/SafetyHopperVelocity-v1``; SPPO at the small configuration of ``hyperparams/small/sppo.yml``,
+  or SAILR at ``hyperparams/sailr.yml``; recorded once into ``--states``, then reused) are replayed through the
+  task's rule, certified (the default) and full
   (``certify=False``, every quantity solved on every step), with 1 env (the run's steps in order) and with 8 envs
   (the run cut into 8 consecutive pieces, one per env, shielded in one call per step). Reported: mean and 95th
   percentile ms per env step (a call's time over its envs), the share of steps that solved ``Q̄(s, a)``, ``ζ(s)``
@@ -18,6 +20,7 @@ Runs, in one process:
     python scripts/bench_shield.py                       # record (if needed) 3000 steps of SPPO, replay all
     python scripts/bench_shield.py --envs 1 --full-steps 1000
     python scripts/bench_shield.py --quick               # a 400-step recording, 200 full-rule steps
+    python scripts/bench_shield.py --task sppo_sb3/SafetyHopperVelocity-v1 --envs 1 --skip point rollouts
 """
 
 from __future__ import annotations
@@ -35,8 +38,9 @@ import numpy as np
 import yaml
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
+from sppo_sb3.shield import SHIELDING_RULES, MujocoShieldingRule, rule_parameters_of
 from sppo_sb3.shield.base import ShieldDecision, ShieldingRule
-from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule, rollout_heights_python, states_from_obs
+from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule, rollout_heights_python
 from sppo_sb3.shield.point import PointCircleShieldingRule
 from sppo_sb3.zoo import eval_kwargs_strings, eval_yml_string
 
@@ -46,23 +50,40 @@ HYPERPARAMS = {"sppo": ROOT / "hyperparams" / "small" / "sppo.yml", "sailr": ROO
 
 
 # ---------------------------------------------------------------------------------------------------- recording
-class RecordingRule(HalfCheetahHeightShieldingRule):
-    """The default Half-Cheetah rule, keeping every observation and proposed action it shields."""
+def task_rule(task: str, **settings: Any) -> MujocoShieldingRule:
+    """The rule registered for ``task``, built from the env's parameters, with ``settings`` (threads, certify)."""
+    env = gym.make(task)
+    rule = SHIELDING_RULES[task](**rule_parameters_of(task, env), **settings)
+    env.close()
+    assert isinstance(rule, MujocoShieldingRule), f"{task}'s rule is not a MujocoShieldingRule"
+    return rule
 
-    def __init__(self, **kwargs: Any) -> None:
-        super().__init__(**kwargs)
+
+class RecordingRule(ShieldingRule):
+    """A rule that keeps every observation and proposed action it shields, and lets ``rule`` decide."""
+
+    def __init__(self, rule: ShieldingRule) -> None:
+        super().__init__(eta=rule.eta, penalty=rule.penalty)
+        self.rule = rule
+        self.gamma = getattr(rule, "gamma", 0.99)
         self.observations: list[np.ndarray] = []
         self.proposals: list[np.ndarray] = []
+
+    def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        return self.rule.cost_value(obs, actions)
+
+    def backup_action(self, obs: np.ndarray) -> np.ndarray:
+        return self.rule.backup_action(obs)
 
     def shield(self, obs: np.ndarray, actions: np.ndarray) -> ShieldDecision:
         self.observations.append(np.array(obs, dtype=np.float64).reshape(len(obs), -1))
         self.proposals.append(np.array(actions, dtype=np.float64).reshape(len(obs), -1))
-        return super().shield(obs, actions)
+        return self.rule.shield(obs, actions)
 
 
-def algo_kwargs(algo: str) -> dict[str, Any]:
+def algo_kwargs(algo: str, task: str) -> dict[str, Any]:
     """The yml entry of ``algo`` for the task, as constructor keywords (zoo-only keys dropped)."""
-    kwargs = eval_kwargs_strings(dict(yaml.safe_load(HYPERPARAMS[algo].read_text())[ENV_ID]))
+    kwargs = eval_kwargs_strings(dict(yaml.safe_load(HYPERPARAMS[algo].read_text())[task]))
     if isinstance(kwargs.get("policy_kwargs"), str):  # rl-zoo3 evaluates this one itself
         kwargs["policy_kwargs"] = eval_yml_string(kwargs["policy_kwargs"])
     for key in ("n_timesteps", "n_envs", "normalize", "shield"):
@@ -70,16 +91,16 @@ def algo_kwargs(algo: str) -> dict[str, Any]:
     return kwargs
 
 
-def record_run(algo: str, steps: int, seed: int) -> dict[str, np.ndarray]:
+def record_run(algo: str, task: str, steps: int, seed: int) -> dict[str, np.ndarray]:
     """Train ``algo`` shielded on one env for ``steps`` env steps; the shield's inputs, in order, and the violations."""
     from stable_baselines3.common.env_util import make_vec_env
 
     from sppo_sb3 import SAILR, SPPO
 
-    rule = RecordingRule(seed=seed)
-    env = make_vec_env(ENV_ID, n_envs=1, seed=seed)
+    rule = RecordingRule(task_rule(task, seed=seed))
+    env = make_vec_env(task, n_envs=1, seed=seed)
     cls = {"sppo": SPPO, "sailr": SAILR}[algo]
-    kwargs = algo_kwargs(algo)
+    kwargs = algo_kwargs(algo, task)
     model = cls(kwargs.pop("policy"), env, shield=rule, seed=seed, **kwargs)
     model.learn(steps)
     return {
@@ -90,14 +111,14 @@ def record_run(algo: str, steps: int, seed: int) -> dict[str, np.ndarray]:
     }
 
 
-def load_or_record(path: Path, algo: str, steps: int, seed: int) -> dict[str, np.ndarray]:
+def load_or_record(path: Path, algo: str, task: str, steps: int, seed: int) -> dict[str, np.ndarray]:
     """The recorded run at ``path``, recorded first when missing."""
     if not path.exists():
         start = time.perf_counter()
-        run = record_run(algo, steps, seed)
+        run = record_run(algo, task, steps, seed)
         path.parent.mkdir(parents=True, exist_ok=True)
         np.savez(path, **run)
-        print(f"recorded {len(run['obs'])} steps of shielded {algo} on {ENV_ID} in {time.perf_counter() - start:.0f} s")
+        print(f"recorded {len(run['obs'])} steps of shielded {algo} on {task} in {time.perf_counter() - start:.0f} s")
     with np.load(path) as run:
         return dict(run)
 
@@ -113,7 +134,7 @@ def env_sequences(obs: np.ndarray, actions: np.ndarray, n_envs: int) -> tuple[np
     )
 
 
-def replay(rule: HalfCheetahHeightShieldingRule, obs: np.ndarray, actions: np.ndarray) -> dict[str, Any]:
+def replay(rule: MujocoShieldingRule, obs: np.ndarray, actions: np.ndarray) -> dict[str, Any]:
     """Shield each step ``(n_envs, ...)`` of ``obs``/``actions`` in one call; times, decisions and solve counts."""
     seconds, executed, intervened = [], [], []
     for step_obs, step_actions in zip(obs, actions):
@@ -137,14 +158,16 @@ def replay(rule: HalfCheetahHeightShieldingRule, obs: np.ndarray, actions: np.nd
     }
 
 
-def bench_replay(run: dict[str, np.ndarray], envs: list[int], full_steps: int | None, threads: int) -> list[dict[str, Any]]:
+def bench_replay(
+    run: dict[str, np.ndarray], task: str, envs: list[int], full_steps: int | None, threads: int
+) -> list[dict[str, Any]]:
     """Certified and full rule on the recorded run, for each number of envs; decisions compared step by step."""
     rows = []
     for n_envs in envs:
         obs, actions = env_sequences(run["obs"], run["actions"], n_envs)
-        certified = replay(HalfCheetahHeightShieldingRule(n_threads=threads), obs, actions)
+        certified = replay(task_rule(task, n_threads=threads), obs, actions)
         limit = len(obs) if full_steps is None else max(1, full_steps // n_envs)
-        full = replay(HalfCheetahHeightShieldingRule(n_threads=threads, certify=False), obs[:limit], actions[:limit])
+        full = replay(task_rule(task, n_threads=threads, certify=False), obs[:limit], actions[:limit])
         same = np.all(certified["executed"][:limit] == full["executed"], axis=2) & (
             certified["intervened"][:limit] == full["intervened"]
         )
@@ -199,7 +222,7 @@ def bench_rollouts(threads: int, repeats: int, sizes: tuple[int, ...]) -> list[d
     obs = visited_observations(ENV_ID, 8)
     rows = []
     for size in sizes:
-        states = states_from_obs(serial.model, obs[np.arange(size) % len(obs)])
+        states = serial.layout.states_from_obs(serial.model, obs[np.arange(size) % len(obs)])
         controls = np.clip(0.5 * np.random.default_rng(size).standard_normal((size, serial.horizon, 6)), -1, 1)
         rows.append(time_rollouts(serial, pooled, states, controls, repeats))
     return rows
@@ -240,6 +263,7 @@ def print_table(title: str, rows: list[dict[str, Any]]) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--task", default=ENV_ID, help="a MuJoCo task with a registered MujocoShieldingRule")
     parser.add_argument("--algo", choices=sorted(HYPERPARAMS), default="sppo", help="the recorded training run")
     parser.add_argument("--steps", type=int, default=3000, help="env steps of the recorded run")
     parser.add_argument("--seed", type=int, default=0, help="seed of the recorded run")
@@ -254,17 +278,20 @@ def main() -> None:
     args = parser.parse_args()
     if args.quick:
         args.steps, args.full_steps, args.repeats = 400, args.full_steps or 200, 1
-    states = args.states or ROOT / "results" / "bench_shield" / f"{args.algo}_{args.steps}_seed{args.seed}.npz"
+    name = f"{args.algo}_{args.steps}_seed{args.seed}.npz"
+    if args.task != ENV_ID:
+        name = f"{args.task.replace('/', '-')}_{name}"
+    states = args.states or ROOT / "results" / "bench_shield" / name
 
     figures: dict[str, Any] = {"threads": args.threads}
     if "replay" not in args.skip:
-        run = load_or_record(states, args.algo, args.steps, args.seed)
+        run = load_or_record(states, args.algo, args.task, args.steps, args.seed)
         print(
-            f"{len(run['obs'])} steps of a shielded {args.algo} run on {ENV_ID} ({states}): "
+            f"{len(run['obs'])} steps of a shielded {args.algo} run on {args.task} ({states}): "
             f"{int(run['violations'])} violations, {int(run['interventions'])} interventions"
         )
-        figures["replay"] = bench_replay(run, args.envs, args.full_steps, args.threads)
-        print_table(f"Half-Cheetah rule on the run's states (rollout threads = {args.threads})", figures["replay"])
+        figures["replay"] = bench_replay(run, args.task, args.envs, args.full_steps, args.threads)
+        print_table(f"{args.task}'s rule on the run's states (rollout threads = {args.threads})", figures["replay"])
     if "point" not in args.skip:
         figures["point"] = bench_point(args.repeats)
         print_table("Point rule on visited states", figures["point"])

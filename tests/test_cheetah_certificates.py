@@ -7,7 +7,8 @@ import pytest
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.envs.half_cheetah_height import SafeHalfCheetahHeightEnv
-from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule, WarmStarts, states_from_obs
+from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule
+from sppo_sb3.shield.warm_starts import WarmStarts
 
 HOLD = np.full(6, 0.3)  # stands still, front thigh at ~0.61
 
@@ -51,7 +52,7 @@ def test_the_bounds_behind_the_certificates() -> None:
     """``J >= 0``; ``Q̄(s, a) <= J([a, W[1:]])``; ``Q̄(s, ζ(s))`` at most ``J([ζ, W[1:]])`` and ``ζ``'s particle plan's."""
     rule = small_rule(certify=False)
     obs = observations_near_violations(12)
-    states = states_from_obs(rule.model, obs)
+    states = rule.layout.states_from_obs(rule.model, obs)
     actions = np.random.default_rng(1).uniform(-1, 1, (len(obs), 6))
     warm = np.clip(0.3 * np.random.default_rng(2).standard_normal((len(obs), rule.horizon, 6)), -1, 1)
     nominal_cost = rule.plan_costs(states, warm[:, 1:], actions)

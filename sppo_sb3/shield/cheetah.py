@@ -1,87 +1,66 @@
-"""The Half-Cheetah's shielding rule (Section V-A-2): an MPPI backup and ``Q̄`` rolled on the MuJoCo model itself.
+"""The Half-Cheetah's shielding rule (Section V-A-2): the general MuJoCo rule on the front thigh's height.
 
-Every particle of every MPC solve of a batch runs in one call of :mod:`mujoco.rollout` (C, threaded), so the cost of
-the rule is the physics. The front thigh's height is read per physics step by a ``framepos`` sensor added to the model
-on the body frame (``objtype="xbody"``, i.e. ``data.xpos``, the quantity of the env; ``"body"`` would measure the
-inertial frame ``data.xipos``). A position sensor is evaluated by ``mj_step`` *before* it integrates, so
-``sensordata[k]`` is the height of the state *entering* physics step ``k``: the rollouts run one extra physics step
-and read the height after env step ``j`` at index ``frame_skip · j``.
-
-Most env steps need no MPC solve. Every cost ``J`` is ``>= 0``; the MPC keeps the best of its candidates, one of which
-is its nominal plan, so ``Q̄(s, a)`` is at most ``J`` of "``a``, then the nominal plan"; and
-``Ā(s, a) = Q̄(s, a) - Q̄(s, ζ(s)) <= Q̄(s, a)``. One rollout whose ``J <= η`` therefore proves ``(s, a) ∉ I``
-(Section III-B), so that eqs. 5 and 12 keep ``a``, without solving anything:
-:meth:`HalfCheetahHeightShieldingRule.shield` solves only where such certificates fail, and gives the same decisions
-as solving everywhere (``certify=False``).
+The height is read per physics step by a ``framepos`` sensor added to the model on the body frame
+(``objtype="xbody"``, i.e. ``data.xpos``, the quantity of the env; ``"body"`` would measure the inertial frame
+``data.xipos``). Everything else, the MPPI backup, ``Q̄`` and the certificates, is
+:class:`~sppo_sb3.shield.mujoco.MujocoShieldingRule`'s.
 """
 
 from __future__ import annotations
 
-import copy
-import os
-import warnings
-from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import mujoco
 import numpy as np
-from mujoco import rollout as mj_rollout
 
-from sppo_sb3.common.costs import shaped_cost
-from sppo_sb3.envs.half_cheetah_height import (
-    FRAME_SKIP,
-    HEIGHT_BODY,
-    half_cheetah_xml_path,
-    height_distance_to_unsafe,
-    height_is_unsafe,
-)
-from sppo_sb3.shield.base import ShieldDecision, ShieldingRule, in_shielding_set
+from sppo_sb3.envs.half_cheetah_height import HEIGHT_BODY, height_distance_to_unsafe, height_is_unsafe
+from sppo_sb3.shield.mjmodel import ConstraintSteps, StateConstraint
+from sppo_sb3.shield.mujoco import MujocoShieldingRule
 
-_FULL = mujoco.mjtState.mjSTATE_FULLPHYSICS
+ENV_ID = "SafeHalfCheetahHeight-v1"
 
 
-def build_height_model(xml_path: str | None = None) -> mujoco.MjModel:
-    """The env's MuJoCo model plus a ``framepos`` sensor on ``fthigh``'s body frame (its last 3 sensor values).
+class FthighHeightConstraint(StateConstraint):
+    """Unsafe iff the z of ``fthigh``'s body frame origin leaves ``[0.4, 1.0]``; distance ``min(h - 0.4, 1.0 - h)``."""
 
-    :param xml_path: the MJCF file; gymnasium's ``half_cheetah.xml`` by default.
+    uses_states = False
+
+    def add_sensors(self, spec: mujoco.MjSpec) -> None:
+        spec.add_sensor(
+            name="fthigh_frame", type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=mujoco.mjtObj.mjOBJ_XBODY, objname=HEIGHT_BODY
+        )
+
+    def height(self, steps: ConstraintSteps) -> np.ndarray:
+        """``(..., T)`` heights after each step: the z of the framepos sensor, added last."""
+        return steps.sensors_after[..., -1]
+
+    def is_unsafe(self, steps: ConstraintSteps) -> np.ndarray:
+        return height_is_unsafe(self.height(steps))
+
+    def distance(self, steps: ConstraintSteps) -> np.ndarray:
+        return height_distance_to_unsafe(self.height(steps))
+
+
+class HalfCheetahHeightShieldingRule(MujocoShieldingRule):
+    """SAILR's MPC intervention on ``SafeHalfCheetahHeight-v1``: :class:`MujocoShieldingRule` with
+    :class:`FthighHeightConstraint`, SAILR's MPPI settings (64 particles, ``λ = 0.2``, ``H = 15``) and the paper's
+    ``α = 0.05``, ``η = 0.2``.
+
+    :param alpha: shaped-cost band width of eq. 18 (paper: 0.05).
+    :param eta: advantage threshold (paper: 0.2).
+    :param kwargs: the other settings of :class:`MujocoShieldingRule`.
     """
-    spec = mujoco.MjSpec.from_file(xml_path or half_cheetah_xml_path())
-    spec.add_sensor(
-        name="fthigh_frame", type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=mujoco.mjtObj.mjOBJ_XBODY, objname=HEIGHT_BODY
-    )
-    with warnings.catch_warnings():  # the stock model uses the deprecated `settotalmass`; gymnasium loads it as is
-        warnings.simplefilter("ignore")
-        return spec.compile()
 
+    def __init__(self, alpha: float = 0.05, eta: float = 0.2, **kwargs: Any) -> None:
+        super().__init__(ENV_ID, FthighHeightConstraint(), alpha=alpha, eta=eta, **kwargs)
 
-def states_from_obs(model: mujoco.MjModel, obs: np.ndarray) -> np.ndarray:
-    """Full physics states ``(B, nstate)`` rebuilt from observations ``[qpos[1:], qvel]``: time = 0, x = 0.
-
-    The x position is unobserved and irrelevant to the dynamics and to the height (the ground is flat).
-    """
-    obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
-    nq, nv = model.nq, model.nv
-    if obs.shape[1] != nq - 1 + nv:
-        raise ValueError(f"Expected observations [qpos[1:], qvel] of size {nq - 1 + nv}, got {obs.shape[1]}.")
-    states = np.zeros((len(obs), mujoco.mj_stateSize(model, _FULL)))
-    states[:, 2 : 1 + nq] = obs[:, : nq - 1]  # layout: time, qpos, qvel, (act, ... empty for this model)
-    states[:, 1 + nq : 1 + nq + nv] = obs[:, nq - 1 :]
-    return states
-
-
-def obs_from_states(model: mujoco.MjModel, states: np.ndarray) -> np.ndarray:
-    """Observations ``[qpos[1:], qvel]`` of full physics states ``(B, nstate)`` (the inverse of :func:`states_from_obs`)."""
-    return np.ascontiguousarray(states[:, 2 : 1 + model.nq + model.nv])
-
-
-def physics_controls(controls: np.ndarray, frame_skip: int = FRAME_SKIP) -> np.ndarray:
-    """Per-env-step controls ``(M, T, nu)`` → per-physics-step ``(M, T·frame_skip + 1, nu)`` (last step repeated)."""
-    ctrl = np.repeat(controls, frame_skip, axis=1)
-    return np.ascontiguousarray(np.concatenate([ctrl, ctrl[:, -1:]], axis=1))
+    def rollout_heights(self, states: np.ndarray, controls: np.ndarray) -> np.ndarray:
+        """``(M, T)`` front-thigh heights after each env step of open-loop rollouts (one :mod:`mujoco.rollout` call)."""
+        return FthighHeightConstraint().height(self.rollout_steps(states, controls))
 
 
 def rollout_heights_python(
-    model: mujoco.MjModel, data: mujoco.MjData, states: np.ndarray, controls: np.ndarray, frame_skip: int = FRAME_SKIP
+    model: mujoco.MjModel, data: mujoco.MjData, states: np.ndarray, controls: np.ndarray, frame_skip: int = 5
 ) -> np.ndarray:
     """Reference implementation of :meth:`HalfCheetahHeightShieldingRule.rollout_heights`: a Python ``mj_step`` loop.
 
@@ -92,7 +71,7 @@ def rollout_heights_python(
     body = model.body(HEIGHT_BODY).id
     heights = np.empty(controls.shape[:2])
     for i in range(len(states)):
-        mujoco.mj_setState(model, data, states[i], _FULL)
+        mujoco.mj_setState(model, data, states[i], mujoco.mjtState.mjSTATE_FULLPHYSICS)
         data.qacc_warmstart[:] = 0.0  # as the native rollouts' initial warm start
         for t in range(controls.shape[1]):
             data.ctrl[:] = controls[i, t]
@@ -100,446 +79,3 @@ def rollout_heights_python(
             mujoco.mj_kinematics(model, data)
             heights[i, t] = data.xpos[body, 2]
     return heights
-
-
-class WarmStarts:
-    """The MPC's warm-started nominal plans, each stored under the observation it starts from.
-
-    After a shielded step the rule stores, under the predicted next observation, the plan it would follow from there;
-    a later call whose observation matches that prediction (within ``tolerance``: the rebuilt state reproduces the
-    env's step to about ``1e-13``) starts its MPC from it. Any other observation — an episode's first, or one the
-    rule did not predict — starts from the zero plan. Keying by the state, not by an env index, serves any caller:
-    one batched call for all envs (SPPO) as one call per env (:class:`~sppo_sb3.shield.ShieldWrapper`).
-
-    :param capacity: plans kept at most (the oldest go first): one per running env is needed.
-    :param horizon: plan length ``H``.
-    :param n_controls: controls per step.
-    :param tolerance: largest absolute difference, per observation entry, of a match.
-    """
-
-    def __init__(self, capacity: int, horizon: int, n_controls: int, tolerance: float = 1e-5) -> None:
-        if capacity < 1:
-            raise ValueError(f"WarmStarts needs a capacity >= 1, got {capacity}.")
-        self.capacity = capacity
-        self.horizon = horizon
-        self.n_controls = n_controls
-        self.tolerance = tolerance
-        self.clear()
-
-    def clear(self) -> None:
-        """Forget every plan."""
-        self.keys = np.empty((0, 0))
-        self.plans = np.empty((0, self.horizon, self.n_controls))
-
-    def lookup(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The plans stored under ``obs``, or zero plans.
-
-        :param obs: ``(B, obs_dim)`` observations.
-        :return: ``(B, H, n_controls)`` plans and ``(B,)`` the indices of the stored entries used (-1: none).
-        """
-        plans = np.zeros((len(obs), self.horizon, self.n_controls))
-        index = np.full(len(obs), -1)
-        if len(self.keys) == 0 or self.keys.shape[1] != obs.shape[1]:
-            return plans, index
-        close = np.abs(obs[:, None, :] - self.keys[None, :, :]).max(axis=2) <= self.tolerance
-        found = close.any(axis=1)
-        index[found] = len(self.keys) - 1 - np.argmax(close[found, ::-1], axis=1)  # the newest match
-        plans[found] = self.plans[index[found]]
-        return plans, index
-
-    def replace(self, used: np.ndarray, keys: np.ndarray, plans: np.ndarray) -> None:
-        """Drop the entries ``used`` (their states are left behind) and store ``plans`` under ``keys``, newest last.
-
-        :param used: indices from :meth:`lookup` (-1 entries are ignored).
-        :param keys: ``(B, obs_dim)`` the observations the plans start from.
-        :param plans: ``(B, H, n_controls)`` the plans.
-        """
-        keep = np.ones(len(self.keys), dtype=bool)
-        keep[used[used >= 0]] = False
-        old_keys = self.keys[keep] if len(self.keys) else np.empty((0, keys.shape[1]))
-        self.keys = np.concatenate([old_keys, keys])[-self.capacity :]
-        self.plans = np.concatenate([self.plans[keep], plans])[-self.capacity :]
-
-
-class MPCSolution(NamedTuple):
-    """An MPC solve per state: ``(M, L, nu)`` plans, ``(M,)`` their costs ``J`` and whether each plan is a particle."""
-
-    plans: np.ndarray
-    costs: np.ndarray
-    is_particle: np.ndarray
-
-
-class ShieldStep(NamedTuple):
-    """One shielded step per state: the backup actions (where solved), the decisions, the advantages, the plans to
-    follow after the executed actions ``(M, H - 1, nu)``, and how many states solved ``Q̄(s, a)``, ``ζ(s)`` and
-    ``Q̄(s, ζ(s))``."""
-
-    backup: np.ndarray
-    intervened: np.ndarray
-    advantage: np.ndarray
-    tails: np.ndarray
-    q_solves: int
-    backup_solves: int
-    backup_value_solves: int
-
-
-@dataclass
-class SolveCounts:
-    """What :meth:`HalfCheetahHeightShieldingRule.shield` computed, summed over its calls.
-
-    :param steps: env steps shielded (rows of the calls).
-    :param q_solves: steps that solved ``Q̄(s, a)`` (the warm plan did not certify ``(s, a) ∉ I``).
-    :param backup_solves: steps that also solved ``ζ(s)`` (``Q̄(s, a) > η``).
-    :param backup_value_solves: steps that also solved ``Q̄(s, ζ(s))`` (its bounds left the decision open).
-    """
-
-    steps: int = 0
-    q_solves: int = 0
-    backup_solves: int = 0
-    backup_value_solves: int = 0
-
-
-class HalfCheetahHeightShieldingRule(ShieldingRule):
-    """MPPI backup ``ζ`` and ``Q̄`` rolled on the MuJoCo model (Section V-A-2, SAILR's MPC intervention).
-
-    Costs: along a rollout ``s_0 = s, s_1, ...`` (env steps of ``frame_skip = 5`` physics steps), the discounted shaped
-    cost ``J = Σ_{t<H} γ^(t+1) ĉ(s_(t+1))`` with ``ĉ`` of eq. 18 on the front-thigh height. The unsafe set is
-    absorbing: at the first step ``t`` whose height leaves ``[0.4, 1.0]`` the rest of the sum is replaced by
-    ``γ^(t+1) / (1 - γ)`` (``ĉ = 1`` forever), as in the Point rule. Every ``J`` is ``>= 0``.
-
-    The MPC from a state ``s`` (optionally after a fixed first action) around a nominal plan ``W``: one MPPI iteration
-    over ``N`` particles ``clip(W + σ·ε_i, -1, 1)`` (``ε_0 = 0``: particle 0 is ``W`` itself), each scored by ``J``;
-    weights ``softmax(-J / λ)``; the MPPI plan is the weighted mean of the particles. Of the MPPI plan and the best
-    particle, the MPC returns the one with the lower ``J``; so its ``J`` is never above ``W``'s.
-
-    - Backup ``ζ(s)``: the first action of the MPC plan from ``s`` around ``W`` (``H`` steps).
-    - ``Q̄(s, a)`` (the paper's ``Q̄ = E[Σ_(t=0)^(H_m) γ^t ĉ | â_(1:H) = MPC(ŝ_1)]``, as SAILR computes it): ``J`` of
-      ``a`` followed by the MPC re-solved from ``ŝ_1`` around ``W[1:]`` (``H - 1`` steps; its particles are rolled
-      from ``s`` with ``a`` as their first action, so each is scored over the same ``H`` steps).
-    - Shield (eqs. 5, 12): execute ``a`` unless ``Ā(s, a) = Q̄(s, a) - Q̄(s, ζ(s)) > η``, else ``ζ(s)``.
-
-    The noise ``ε`` is drawn once, from ``seed``, and shared by every solve (common random numbers): ``Q̄``, ``ζ`` and
-    the decisions are deterministic functions of ``(s, a, W)``, ``Ā(s, ζ(s)) = 0`` exactly (Proposition 1), and the
-    certified and the full rule can be compared decision by decision.
-
-    Warm start: ``W`` is the plan the rule meant to follow from ``s`` when it shielded the previous step (see
-    :class:`WarmStarts`; the zero plan at an episode's start). After the step it is, from the next state: where
-    shielded, the tail of ``ζ``'s plan (the backup plan, shifted); else ``W[1:]`` if "``a``, then ``W[1:]``" has
-    ``J <= η`` (the warm plan still certifies the executed ``a``), else the first of the next
-    ``certificate_particles`` particles of ``Q̄(s, a)``'s solve that does; else the plan of the ``Q̄(s, a)`` solve.
-    A zero step is appended.
-
-    Certificates (``certify=True``): since ``J >= 0`` and the MPC never does worse than its nominal plan,
-    ``Ā(s, a) <= Q̄(s, a) <= J([a, W[1:]])``, and the same holds for every particle of ``Q̄(s, a)``'s solve. Per env
-    step the rule rolls ``[a, W[1:]]`` once; where its ``J <= η``, ``(s, a) ∉ I`` and nothing is solved; elsewhere it
-    tries a few more particles the same way. Only then it solves ``Q̄(s, a)`` (where ``<= η``, again ``(s, a) ∉ I``),
-    then ``ζ(s)``, and ``Q̄(s, ζ(s))`` only where its upper bounds leave the decision open
-    (:meth:`_shield_certified`). Each stage is one batch over the envs of the call. The decisions and the warm plans
-    are those of ``certify=False``, which solves ``Q̄(s, a)``, ``ζ(s)`` and ``Q̄(s, ζ(s))`` on every step.
-
-    :param horizon: ``H_m``, the MPC and ``Q̄`` horizon in env steps.
-    :param n_particles: MPPI particles per solve (SAILR: 64).
-    :param temperature: MPPI temperature ``λ`` (SAILR: 0.2).
-    :param noise_std: standard deviation ``σ`` of the particle controls around the nominal plan.
-    :param alpha: shaped-cost band width of eq. 18 (paper: 0.05).
-    :param gamma: discount of ``Q̄`` (paper: 0.99).
-    :param eta: advantage threshold (paper: 0.2).
-    :param penalty: absorbing reward ``R̃``.
-    :param seed: seed of the particle noise ``ε`` (``None``: fresh entropy).
-    :param certify: skip the solves that a certificate makes unnecessary (same decisions); ``False`` solves
-        ``ζ(s)``, ``Q̄(s, a)`` and ``Q̄(s, ζ(s))`` on every step, the reference.
-    :param certificate_particles: particles of ``Q̄(s, a)``'s solve, after ``W[1:]``, tried as certificates (and as
-        the plan to follow) before solving.
-    :param n_threads: threads of the rollout pool; ``None``: one per available core; 0: the calling thread.
-    :param warm_starts: how many warm plans the rule keeps (one per running env is needed).
-    :param xml_path: the MJCF model (must be the env's); gymnasium's ``half_cheetah.xml`` by default.
-    """
-
-    def __init__(
-        self,
-        horizon: int = 15,
-        n_particles: int = 64,
-        temperature: float = 0.2,
-        noise_std: float = 0.5,
-        alpha: float = 0.05,
-        gamma: float = 0.99,
-        eta: float = 0.2,
-        penalty: float = -1.0,
-        seed: int | None = 0,
-        certify: bool = True,
-        certificate_particles: int = 16,
-        n_threads: int | None = None,
-        warm_starts: int = 256,
-        xml_path: str | None = None,
-    ) -> None:
-        super().__init__(eta=eta, penalty=penalty)
-        if horizon < 2 or n_particles < 1 or temperature <= 0 or noise_std < 0:
-            raise ValueError("Need horizon >= 2, n_particles >= 1, temperature > 0 and noise_std >= 0.")
-        self.horizon = horizon
-        self.n_particles = n_particles
-        self.temperature = temperature
-        self.noise_std = noise_std
-        self.alpha = alpha
-        self.gamma = gamma
-        self.seed = seed
-        self.certify = certify
-        self.certificate_particles = min(certificate_particles, n_particles - 1)
-        self.n_threads = len(os.sched_getaffinity(0)) if n_threads is None else n_threads
-        self.xml_path = xml_path
-        self._build()
-        self.noise = noise_std * np.random.default_rng(seed).standard_normal((n_particles, horizon, self.model.nu))
-        self.noise[0] = 0.0
-        self.warm_starts = WarmStarts(warm_starts, horizon, self.model.nu)
-        self.solve_counts = SolveCounts()
-
-    # --- MuJoCo objects: rebuilt after unpickling ---------------------------------------------------------------
-
-    def _build(self) -> None:
-        """Compile the model and create the per-thread data and the rollout thread pool."""
-        self.model = build_height_model(self.xml_path)
-        self._datas = [mujoco.MjData(self.model) for _ in range(max(1, self.n_threads))]
-        self._pool = mj_rollout.Rollout(nthread=self.n_threads)
-        self._height_index = self.model.nsensordata - 1  # z of the framepos sensor added last
-        low, high = self.model.actuator_ctrlrange.T
-        self.action_low, self.action_high = low.copy(), high.copy()
-
-    def __getstate__(self) -> dict[str, Any]:
-        state = self.__dict__.copy()
-        for key in ("model", "_datas", "_pool"):
-            state.pop(key)
-        state["warm_starts"] = copy.copy(self.warm_starts)  # the plans belong to the running episodes: not saved
-        state["warm_starts"].clear()
-        return state
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state)
-        self._build()
-
-    # --- rollouts and costs -------------------------------------------------------------------------------------
-
-    def _rollout(self, states: np.ndarray, ctrl: np.ndarray, **outputs: np.ndarray) -> None:
-        """Open-loop rollouts of per-physics-step controls ``(M, nstep, nu)`` into ``outputs`` (``state``, ``sensordata``)."""
-        m = len(ctrl)
-        self._pool.rollout(
-            [self.model] * m,
-            self._datas,
-            np.ascontiguousarray(states),
-            ctrl,
-            skip_checks=True,
-            nstep=ctrl.shape[1],
-            initial_warmstart=np.zeros((m, self.model.nv)),  # same start on every thread: deterministic
-            **outputs,
-        )
-
-    def rollout_heights(self, states: np.ndarray, controls: np.ndarray) -> np.ndarray:
-        """Front-thigh heights after each env step of open-loop rollouts, all in one :mod:`mujoco.rollout` call.
-
-        :param states: ``(M, nstate)`` full physics states.
-        :param controls: ``(M, T, nu)`` controls, one per env step, inside the control range.
-        :return: ``(M, T)`` heights.
-        """
-        ctrl = physics_controls(controls)
-        sensordata = np.empty((len(ctrl), ctrl.shape[1], self.model.nsensordata))
-        self._rollout(states, ctrl, sensordata=sensordata)
-        return sensordata[:, FRAME_SKIP::FRAME_SKIP, self._height_index]
-
-    def next_observations(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """Observations after one env step of ``actions`` ``(M, nu)`` from ``states`` (the model's prediction)."""
-        ctrl = np.ascontiguousarray(np.repeat(actions[:, None], FRAME_SKIP, axis=1))
-        trajectory = np.empty((len(ctrl), FRAME_SKIP, len(states[0])))
-        self._rollout(states, ctrl, state=trajectory)
-        return obs_from_states(self.model, trajectory[:, -1])
-
-    def discounted_cost(self, heights: np.ndarray) -> np.ndarray:
-        """``J = Σ_t γ^(t+1) ĉ(h_(t+1))`` (eq. 18 cost) with the absorbing tail ``γ^(t+1)/(1-γ)`` at the first violation.
-
-        :param heights: ``(..., T)`` heights after each env step.
-        :return: ``(...)`` discounted costs, ``>= 0``.
-        """
-        unsafe = height_is_unsafe(heights)
-        before_violation = (np.cumsum(unsafe, axis=-1) - unsafe) == 0  # no violation strictly before t
-        discount = self.gamma ** np.arange(1, heights.shape[-1] + 1)
-        cost = shaped_cost(height_distance_to_unsafe(heights), self.alpha)
-        step = np.where(unsafe, discount / (1.0 - self.gamma), cost * discount)
-        return np.sum(np.where(before_violation, step, 0.0), axis=-1)
-
-    def plan_costs(self, states: np.ndarray, plans: np.ndarray, first_action: np.ndarray | None = None) -> np.ndarray:
-        """``J`` of each rollout "``first_action`` (if given), then ``plans``" from ``states``.
-
-        :param states: ``(M, nstate)`` full physics states.
-        :param plans: ``(M, K, L, nu)`` ``K`` plans per state, or ``(M, L, nu)`` one.
-        :param first_action: ``(M, nu)`` a fixed first action, or ``None``.
-        :return: ``(M, K)`` or ``(M,)`` costs.
-        """
-        shape = plans.shape[:-2]
-        if plans.size == 0:
-            return np.zeros(shape)
-        plans = plans.reshape(len(states), -1, *plans.shape[-2:])
-        if first_action is not None:
-            prefix = np.broadcast_to(first_action[:, None, None, :], (*plans.shape[:2], 1, plans.shape[-1]))
-            plans = np.concatenate([prefix, plans], axis=2)
-        k = plans.shape[1]
-        heights = self.rollout_heights(np.repeat(states, k, axis=0), plans.reshape(-1, *plans.shape[2:]))
-        return self.discounted_cost(heights).reshape(shape)
-
-    def particles(self, nominal: np.ndarray, count: int | None = None) -> np.ndarray:
-        """The first ``count`` (default: all ``N``) MPPI particles ``clip(W + σ·ε_i)`` around ``nominal`` ``(M, L, nu)``.
-
-        The ``Q̄`` solves (``L = H - 1``, around ``W[1:]``) perturb with ``ε_i[1:]``, as ``ζ``'s solve perturbs ``W``
-        with ``ε_i``: :return: ``(M, count, L, nu)``, particle 0 being ``nominal`` itself.
-        """
-        noise = self.noise[:count, self.horizon - nominal.shape[1] :]
-        return np.clip(nominal[:, None] + noise[None], self.action_low, self.action_high)
-
-    def solve(self, states: np.ndarray, nominal: np.ndarray, first_action: np.ndarray | None = None) -> MPCSolution:
-        """The MPC: one MPPI iteration around ``nominal``; of the MPPI plan and the best particle, the one with lower ``J``.
-
-        The weighted mean of a few good particles can be worse than each of them (with the thigh 2 cm from its limit
-        it often is): keeping the better of the two makes ``J`` never worse than the nominal plan's (particle 0).
-        ``M·(N + 1)`` rollouts in two calls; each state's answer does not depend on the others of the batch.
-
-        :param states: ``(M, nstate)`` full physics states.
-        :param nominal: ``(M, L, nu)`` nominal plans inside the control range (``L = H``, or ``H - 1`` after a first
-            action).
-        :param first_action: ``(M, nu)`` a fixed first action, or ``None``.
-        """
-        m = len(nominal)
-        if m == 0:
-            return MPCSolution(nominal.copy(), np.zeros(0), np.zeros(0, dtype=bool))
-        particles = self.particles(nominal)
-        scores = self.plan_costs(states, particles, first_action)
-        weights = np.exp(-(scores - scores.min(axis=1, keepdims=True)) / self.temperature)
-        weights /= weights.sum(axis=1, keepdims=True)
-        mppi = np.clip(np.sum(weights[:, :, None, None] * particles, axis=1), self.action_low, self.action_high)
-        mppi_cost = self.plan_costs(states, mppi, first_action)
-        best = scores.argmin(axis=1)
-        best_cost = scores[np.arange(m), best]
-        is_particle = mppi_cost >= best_cost
-        plans = np.where(is_particle[:, None, None], particles[np.arange(m), best], mppi)
-        return MPCSolution(plans, np.where(is_particle, best_cost, mppi_cost), is_particle)
-
-    def first_certifying(self, costs: np.ndarray) -> np.ndarray:
-        """Per row of ``costs`` ``(M, K)``, the index of the first ``J <= η``; ``K`` where there is none."""
-        below = np.concatenate([costs <= self.eta, np.ones((len(costs), 1), dtype=bool)], axis=1)
-        return np.argmax(below, axis=1)
-
-    def certificate_candidates(self, warm: np.ndarray) -> np.ndarray:
-        """``(M, 1 + certificate_particles, H - 1, nu)``: ``W[1:]`` and the next particles of ``Q̄(s, a)``'s solve."""
-        return self.particles(warm[:, 1:], 1 + self.certificate_particles)
-
-    # --- the rule -----------------------------------------------------------------------------------------------
-
-    def backup_action(self, obs: np.ndarray) -> np.ndarray:
-        """``ζ(s)``: the first action of the MPC plan from ``s`` (around the warm plan stored for ``s``)."""
-        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
-        warm, _ = self.warm_starts.lookup(obs)
-        return self.solve(states_from_obs(self.model, obs), warm).plans[:, 0]
-
-    def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """``Q̄(s, a)``: ``J`` of "take ``a``, then the MPC plan re-solved from ``ŝ_1``" (around the warm plan's tail)."""
-        states, actions = self._inputs(obs, actions)
-        warm, _ = self.warm_starts.lookup(np.asarray(obs, dtype=np.float64).reshape(len(states), -1))
-        return self.solve(states, warm[:, 1:], actions).costs
-
-    def shield(self, obs: np.ndarray, actions: np.ndarray) -> ShieldDecision:
-        """Eq. 12 from the warm plans stored for ``obs``; stores the plans to follow from the next states.
-
-        :param obs: ``(B, 17)`` raw observations.
-        :param actions: ``(B, 6)`` proposed actions.
-        """
-        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
-        actions = np.asarray(actions, dtype=np.float64).reshape(len(obs), -1)
-        states, clipped = self._inputs(obs, actions)
-        warm, used = self.warm_starts.lookup(obs)
-        step = (self._shield_certified if self.certify else self._shield_solved)(states, clipped, warm)
-        executed = np.where(step.intervened[:, None], step.backup, clipped)
-        next_plans = np.concatenate([step.tails, np.zeros_like(step.tails[:, :1])], axis=1)
-        self.warm_starts.replace(used, self.next_observations(states, executed), next_plans)
-        self._count(len(obs), step)
-        safe = np.where(step.intervened[:, None], step.backup, actions)
-        return ShieldDecision(actions=safe, intervened=step.intervened, advantage=step.advantage)
-
-    def _shield_solved(self, states: np.ndarray, actions: np.ndarray, warm: np.ndarray) -> ShieldStep:
-        """The reference: ``Q̄(s, a)``, ``ζ(s)`` and ``Q̄(s, ζ(s))`` solved for every state, ``Ā`` exact.
-
-        The plan after the executed action: ``ζ``'s plan's tail where shielded; else the first of the certificate
-        candidates (:meth:`certificate_candidates`) with ``J([a, candidate]) <= η``; else the ``Q̄(s, a)`` solve's plan.
-        """
-        n = len(states)
-        after_a = self.solve(states, warm[:, 1:], actions)
-        backup_plan = self.solve(states, warm).plans
-        backup_value = self.solve(states, warm[:, 1:], backup_plan[:, 0]).costs
-        advantage = after_a.costs - backup_value
-        intervened = in_shielding_set(advantage, self.eta)
-        candidates = self.certificate_candidates(warm)
-        first = self.first_certifying(self.plan_costs(states, candidates, actions))
-        certified = first < candidates.shape[1]
-        chosen = candidates[np.arange(n), np.minimum(first, candidates.shape[1] - 1)]
-        tails = np.where(certified[:, None, None], chosen, after_a.plans)
-        tails = np.where(intervened[:, None, None], backup_plan[:, 1:], tails)
-        return ShieldStep(backup_plan[:, 0], intervened, advantage, tails, n, n, n)
-
-    def _shield_certified(self, states: np.ndarray, actions: np.ndarray, warm: np.ndarray) -> ShieldStep:
-        """:meth:`_shield_solved`'s decisions and plans, solving only what the bounds on ``Ā`` leave open.
-
-        1. ``Ā(s, a) <= Q̄(s, a) <= J([a, c])`` for every particle ``c`` of ``Q̄(s, a)``'s solve (``J >= 0``, and the
-           solve does no worse than its best particle). Roll ``[a, W[1:]]`` (particle 0); where its ``J > η``, the
-           next ``certificate_particles`` particles: where one has ``J <= η``, keep ``a`` and follow that particle.
-        2. Else solve ``Q̄(s, a)``: where ``<= η``, keep ``a`` and follow the solve's plan.
-        3. Else solve ``ζ(s)`` and bound ``Q̄(s, ζ(s))`` from above by two of its solve's candidates, ``W[1:]`` and,
-           when ``ζ``'s plan is a particle, that plan's tail (then ``J([ζ, tail])`` is ``ζ``'s plan's own ``J``):
-           where ``Q̄(s, a) - bound > η``, ``Ā > η``: shield.
-        4. Else solve ``Q̄(s, ζ(s))``: ``Ā`` exact.
-
-        The advantage reported is the bound that decided (an upper bound ``<= η`` in 1-2, a lower bound ``> η`` in 3).
-        """
-        candidates = self.certificate_candidates(warm)
-        advantage = self.plan_costs(states, candidates[:, 0], actions)
-        tails = candidates[:, 0].copy()
-        backup = actions.copy()
-        intervened = np.zeros(len(states), dtype=bool)
-
-        open_ = np.flatnonzero(advantage > self.eta)
-        costs = self.plan_costs(states[open_], candidates[open_, 1:], actions[open_])
-        first = self.first_certifying(costs)
-        certified = first < costs.shape[1]
-        done, first = open_[certified], first[certified]
-        advantage[done], tails[done] = costs[certified, first], candidates[done, 1 + first]
-
-        open_ = open_[~certified]
-        after_a = self.solve(states[open_], warm[open_, 1:], actions[open_])
-        advantage[open_], tails[open_] = after_a.costs, after_a.plans
-        q_solves = len(open_)
-
-        open_ = open_[after_a.costs > self.eta]
-        q_a = advantage[open_]
-        zeta = self.solve(states[open_], warm[open_])
-        backup[open_] = zeta.plans[:, 0]
-        bound = self.plan_costs(states[open_], warm[open_, 1:], backup[open_])
-        bound = np.where(zeta.is_particle, np.minimum(bound, zeta.costs), bound)
-        advantage[open_] = q_a - bound
-        decided = in_shielding_set(advantage[open_], self.eta)
-        intervened[open_[decided]] = True
-        tails[open_] = np.where(decided[:, None, None], zeta.plans[:, 1:], tails[open_])
-        backup_solves = len(open_)
-
-        open_, zeta_plans, q_a = open_[~decided], zeta.plans[~decided], q_a[~decided]
-        backup_value_solves = len(open_)
-        advantage[open_] = q_a - self.solve(states[open_], warm[open_, 1:], backup[open_]).costs
-        shielded = in_shielding_set(advantage[open_], self.eta)
-        intervened[open_] = shielded
-        tails[open_] = np.where(shielded[:, None, None], zeta_plans[:, 1:], tails[open_])
-        return ShieldStep(backup, intervened, advantage, tails, q_solves, backup_solves, backup_value_solves)
-
-    def _count(self, steps: int, step: ShieldStep) -> None:
-        """Add a call's figures to :attr:`solve_counts`."""
-        self.solve_counts.steps += steps
-        self.solve_counts.q_solves += step.q_solves
-        self.solve_counts.backup_solves += step.backup_solves
-        self.solve_counts.backup_value_solves += step.backup_value_solves
-
-    def _inputs(self, obs: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Physics states rebuilt from ``obs`` and the actions clipped to the control range."""
-        states = states_from_obs(self.model, obs)
-        actions = np.asarray(actions, dtype=np.float64).reshape(len(states), -1)
-        return states, np.clip(actions, self.action_low, self.action_high)

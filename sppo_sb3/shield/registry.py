@@ -6,6 +6,7 @@ user's task joins with :func:`register_shielding_rule`.
 
 from __future__ import annotations
 
+import functools
 import warnings
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -13,20 +14,24 @@ from typing import Any
 import gymnasium as gym
 from stable_baselines3.common.vec_env import VecEnv
 
+from sppo_sb3.envs.velocity import VELOCITY_TASKS
 from sppo_sb3.shield.base import ShieldingRule
 from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule
 from sppo_sb3.shield.point import PointCircleShieldingRule
+from sppo_sb3.shield.velocity import velocity_shielding_rule
 
 #: the rule of each task (``shield="auto"``), by gymnasium id: a class or factory, called for every model
 SHIELDING_RULES: dict[str, Callable[..., ShieldingRule]] = {
     "SafePointCircle-v0": PointCircleShieldingRule,
     "SafeHalfCheetahHeight-v1": HalfCheetahHeightShieldingRule,
+    **{task.env_id: functools.partial(velocity_shielding_rule, task) for task in VELOCITY_TASKS},
 }
 #: the env's own parameters each task's rule is built from: attributes of the env passed to the factory as keyword
 #: arguments of the same name (so the rule agrees with the env made, e.g. its shaped-cost band ``alpha`` of eq. 18)
 RULE_ENV_PARAMETERS: dict[str, tuple[str, ...]] = {
     "SafePointCircle-v0": ("params", "alpha"),
     "SafeHalfCheetahHeight-v1": ("alpha",),
+    **{task.env_id: ("alpha",) for task in VELOCITY_TASKS},
 }
 
 
