@@ -1,22 +1,15 @@
 """``MujocoShieldingRule``: a certified MPC shield for a gymnasium MuJoCo task, from its own model and a constraint.
 
 Every particle of every MPC solve of a batch runs in one call of :mod:`mujoco.rollout` (C, threaded), so the cost of
-the rule is the physics. The constraint (:class:`~sppo_sb3.shield.mjmodel.StateConstraint`) reads the rolled physics
-states and the sensors it adds to the model.
-
-Most env steps need no MPC solve. Every cost ``J`` is ``>= 0``; the MPC keeps the best of its candidates, one of which
-is its nominal plan, so ``Q̄(s, a)`` is at most ``J`` of "``a``, then the nominal plan"; and
-``Ā(s, a) = Q̄(s, a) - Q̄(s, ζ(s)) <= Q̄(s, a)``. One rollout whose ``J <= η`` therefore proves ``(s, a) ∉ I``
-(Section III-B), so that eqs. 5 and 12 keep ``a``, without solving anything: :meth:`MujocoShieldingRule.shield`
-solves only where such certificates fail, and gives the same decisions as solving everywhere (``certify=False``).
+the rule is the physics; certificates (see the class) spare most solves. The constraint
+(:class:`~sppo_sb3.shield.mjmodel.StateConstraint`) reads the rolled physics states and the sensors it adds to the model.
 """
 
 from __future__ import annotations
 
 import copy
 import os
-from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import gymnasium as gym
 import mujoco
@@ -26,51 +19,8 @@ from mujoco import rollout as mj_rollout
 from sppo_sb3.common.costs import shaped_cost
 from sppo_sb3.shield.base import ShieldDecision, ShieldingRule, in_shielding_set
 from sppo_sb3.shield.mjmodel import ConstraintSteps, MujocoLayout, StateConstraint
+from sppo_sb3.shield.mpc import MPCSolution, ShieldStep, SolveCounts, physics_controls
 from sppo_sb3.shield.warm_starts import WarmStarts
-
-
-def physics_controls(controls: np.ndarray, frame_skip: int) -> np.ndarray:
-    """Per-env-step controls ``(M, T, nu)`` → per-physics-step ``(M, T·frame_skip + 1, nu)`` (last step repeated)."""
-    ctrl = np.repeat(controls, frame_skip, axis=1)
-    return np.ascontiguousarray(np.concatenate([ctrl, ctrl[:, -1:]], axis=1))
-
-
-class MPCSolution(NamedTuple):
-    """An MPC solve per state: ``(M, L, nu)`` plans, ``(M,)`` their costs ``J`` and whether each plan is a particle."""
-
-    plans: np.ndarray
-    costs: np.ndarray
-    is_particle: np.ndarray
-
-
-class ShieldStep(NamedTuple):
-    """One shielded step per state: the backup actions (where solved), the decisions, the advantages, the plans to
-    follow after the executed actions ``(M, H - 1, nu)``, and how many states solved ``Q̄(s, a)``, ``ζ(s)`` and
-    ``Q̄(s, ζ(s))``."""
-
-    backup: np.ndarray
-    intervened: np.ndarray
-    advantage: np.ndarray
-    tails: np.ndarray
-    q_solves: int
-    backup_solves: int
-    backup_value_solves: int
-
-
-@dataclass
-class SolveCounts:
-    """What :meth:`MujocoShieldingRule.shield` computed, summed over its calls.
-
-    :param steps: env steps shielded (rows of the calls).
-    :param q_solves: steps that solved ``Q̄(s, a)`` (the warm plan did not certify ``(s, a) ∉ I``).
-    :param backup_solves: steps that also solved ``ζ(s)`` (``Q̄(s, a) > η``).
-    :param backup_value_solves: steps that also solved ``Q̄(s, ζ(s))`` (its bounds left the decision open).
-    """
-
-    steps: int = 0
-    q_solves: int = 0
-    backup_solves: int = 0
-    backup_value_solves: int = 0
 
 
 class MujocoShieldingRule(ShieldingRule):
