@@ -548,3 +548,20 @@ print(" ".join(sorted(name for name in sys.modules if name.startswith("sppo_sb3"
 @pytest.mark.parametrize("module", [*ENV_MODULES, "sppo_sb3.shield.point", "sppo_sb3.shield.cheetah"])
 def test_modules_import_first_in_a_fresh_interpreter(module: str) -> None:
     subprocess.run([sys.executable, "-c", f"import {module}"], check=True)
+
+
+def test_point_rule_never_shields_by_rounding() -> None:
+    """A proposal that moves ``x`` exactly as braking does (``v_x = 0``, no ``x`` force: a purely tangential action)
+    has ``Ā = 0`` to the last bit, right next to the wall; the two ``Q̄`` terms once summed in different orders gave
+    ``Ā ≈ 1e-14 > η = 0`` and shielded 14–24% of these."""
+    rule = PointCircleShieldingRule()
+    rng = np.random.default_rng(0)
+    for x in (2.1, 2.2, 2.3, 2.4):
+        n = 200
+        obs = np.stack([np.full(n, x), rng.uniform(-4.0, 4.0, n), np.zeros(n), rng.uniform(-2.0, 2.0, n)], axis=1)
+        tangential = np.stack([np.zeros(n), rng.uniform(-1.0, 1.0, n)], axis=1)
+        decision = rule.shield(obs, tangential)
+        assert not decision.intervened.any()
+        np.testing.assert_array_equal(decision.advantage, 0.0)
+    pushing_out = rule.shield(np.array([[2.4, 0.0, 0.5, 0.0]]), np.array([[1.0, 0.0]]))
+    assert pushing_out.intervened[0]

@@ -14,10 +14,11 @@ from sppo_sb3.shield.base import ShieldingRule
 class PointCircleShieldingRule(ShieldingRule):
     """Brake to a stop; ``Q̄(s, a) = Σ_t γ^(t+1) ĉ(s_(t+1))`` along "take ``a``, then brake" (eq. 18 shaped cost).
 
-    The rollout stops when the robot is at rest (it stays there under the backup, so the remaining cost is the
-    geometric tail ``γ^(t+1) ĉ / (1 - γ)``) or enters the unsafe set (absorbing, ``ĉ = 1`` forever:
-    ``γ^(t+1) / (1 - γ)``). All rollouts of a batch run together, for a fixed number of steps that is enough to
-    stop from full speed.
+    Every rollout runs the same fixed number of steps, enough to stop from full speed; once at rest the robot stays
+    there under the backup, so the rest of the sum is the geometric tail ``γ^(H+1) ĉ / (1 - γ)``. Entering the unsafe
+    set is absorbing (``ĉ = 1`` forever: ``γ^(t+1) / (1 - γ)``). Two rollouts whose shaped costs agree step by step
+    (a proposal that moves ``x`` as braking does) are summed in the same order, so their ``Q̄`` are equal to the last
+    bit and ``Ā = 0`` exactly: rounding never shields an action (eq. 12 tests ``Ā > η`` with ``η = 0``).
 
     :param params: the task constants (must match the env).
     :param alpha: shaped-cost band width of eq. 18 (paper: 0.5).
@@ -49,16 +50,14 @@ class PointCircleShieldingRule(ShieldingRule):
         """``Q̄(s, a)`` by rolling "take ``a``, then brake" through the known dynamics, batched over ``obs``."""
         state = point_step(obs[:, :4].astype(np.float64), np.clip(actions, -1.0, 1.0), self.params)
         q = np.zeros(len(obs))
-        running = np.ones(len(obs), dtype=bool)
+        running = np.ones(len(obs), dtype=bool)  # not yet absorbed in the unsafe set
         tail = 1.0 / (1.0 - self.gamma)
-        for t in range(self.horizon):
+        for t in range(self.horizon + 1):
             discount = self.gamma ** (t + 1)
             cost = shaped_cost(point_distance_to_unsafe(state, self.params), self.alpha)
             unsafe = point_is_unsafe(state, self.params)
-            at_rest = np.all(np.abs(state[:, 2:4]) < 1e-9, axis=1)
-            q += running * discount * np.where(unsafe, tail, np.where(at_rest, cost * tail, cost))
-            running &= ~(unsafe | at_rest)
-            if not running.any():
-                break
+            at_rest_tail = t == self.horizon  # stopped by now: ĉ stays, the rest of the sum is its tail
+            q += running * discount * np.where(unsafe, tail, cost * tail if at_rest_tail else cost)
+            running &= ~unsafe
             state = point_step(state, self.backup_action(state), self.params)
         return q
