@@ -19,6 +19,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY
+from sppo_sb3.shield.base import ShieldingRule
 from sppo_sb3.shield.wrapper import ShieldWrapper
 
 DEPLOYMENT_KEYS = ("mean_reward", "mean_violations", "safe_episode_rate", "mean_interventions")
@@ -38,6 +39,16 @@ def own_shield_off(model: BaseAlgorithm) -> Iterator[None]:
             model.shield_at_predict = previous  # type: ignore[attr-defined]
 
 
+def deployment_rule(model: BaseAlgorithm) -> ShieldingRule | None:
+    """The shield a model was trained with: its own ``shield_rule``, else the rule of a :class:`ShieldWrapper` around
+    its training envs (an algorithm shielded by the wrapper, e.g. through rl-zoo3's ``env_wrapper``), else ``None``."""
+    rule = getattr(model, "shield_rule", None)
+    venv = model.get_env()
+    if rule is None and venv is not None and venv.env_is_wrapped(ShieldWrapper, indices=[0])[0]:
+        rule = venv.get_attr("rule", indices=[0])[0]
+    return rule
+
+
 def evaluate_deployment(
     model: BaseAlgorithm,
     make_env: Callable[[], gym.Env],
@@ -49,12 +60,12 @@ def evaluate_deployment(
 ) -> dict[str, float]:
     """Run the learned policy for ``n_eval_episodes`` full episodes, with or without the model's shield.
 
-    :param model: a trained algorithm of the package (its ``shield_rule`` is the shield; ``None``: no shield exists,
-        and both deployments are the same).
+    :param model: a trained algorithm (the shield is :func:`deployment_rule`'s; where it finds none, both deployments
+        are the same).
     :param make_env: builds one evaluation env (raw observations, ``info["cost"]``), e.g.
         ``lambda: gym.make("SafePointCircle-v0")``.
     :param n_eval_episodes: episodes to run.
-    :param shielded: execute the actions through :class:`ShieldWrapper` with ``model.shield_rule``.
+    :param shielded: execute the actions through :class:`ShieldWrapper` with the model's rule.
     :param deterministic: deterministic actions (deployment).
     :param seed: seeds the first reset (the following episodes continue the env's RNG); ``None``: unseeded.
     :param vec_normalize: the ``VecNormalize`` the model was trained under: the policy sees the observations
@@ -66,7 +77,7 @@ def evaluate_deployment(
     if n_eval_episodes < 1:
         raise ValueError(f"n_eval_episodes must be >= 1, got {n_eval_episodes}.")
     env = make_env()
-    rule = getattr(model, "shield_rule", None)
+    rule = deployment_rule(model)
     if shielded and rule is not None:
         env = ShieldWrapper(env, rule)
     returns, violations, interventions = [], [], []

@@ -18,7 +18,10 @@ from tiny_hyperparams import TINY_ROLLOUT
 
 from sppo_sb3.common.costs import shaped_cost
 from sppo_sb3.common.keys import ADVANTAGE_KEY, COST_KEY, PROPOSED_ACTION_KEY
-from sppo_sb3.envs.point_circle import PointParams, point_is_unsafe, point_step
+from sppo_sb3.envs.point_circle import PointParams, point_distance_to_unsafe, point_is_unsafe, point_step
+from sppo_sb3.evaluation import deployment_rule, evaluate_deployment
+from sppo_sb3.experiments.point_lap import run_scripted_lap
+from sppo_sb3.pdo import PDO
 from sppo_sb3.sailr import SAILR
 from sppo_sb3.shield import (
     RULE_ENV_PARAMETERS,
@@ -33,6 +36,9 @@ from sppo_sb3.shield import (
     register_shielding_rule,
     resolve_shielding_rule,
 )
+from sppo_sb3.shield.base import advantage_from_values
+from sppo_sb3.shield.point import paper_point_rule
+from sppo_sb3.shield.registry import PAPER_POINT_RULE
 
 PARAMS = PointParams()
 INTERVENED = "shield_intervened"
@@ -51,7 +57,8 @@ def brake_until_rest(rule: PointCircleShieldingRule, states: np.ndarray, steps: 
 class TestPointRule:
     def test_intervenes_at_speed_towards_the_wall(self) -> None:
         rule = PointCircleShieldingRule()
-        obs = np.array([[2.3, 0.0, 2.0, 0.0], [-2.3, 1.0, -2.0, 0.0], [1.8, 0.0, 1.0, 0.0], [1.8, 0.0, 1.0, 0.0]])
+        # the last row coasts one step: from there braking stops at 2.55, while braking now stops at 2.45
+        obs = np.array([[2.3, 0.0, 2.0, 0.0], [-2.3, 1.0, -2.0, 0.0], [1.8, 0.0, 1.0, 0.0], [1.95, 0.0, 1.0, 0.0]])
         actions = np.array([[1.0, 0.0], [-1.0, 0.0], [1.0, 0.0], [0.0, 0.0]])
         decision = rule.shield(obs, actions)
         assert decision.intervened.all()
@@ -550,11 +557,19 @@ def test_modules_import_first_in_a_fresh_interpreter(module: str) -> None:
     subprocess.run([sys.executable, "-c", f"import {module}"], check=True)
 
 
-def test_point_rule_never_shields_by_rounding() -> None:
+POINT_RULES = {
+    "wall": PointCircleShieldingRule,
+    "wall, band 0.5": lambda **kw: PointCircleShieldingRule(alpha=0.5, **kw),
+    "paper": paper_point_rule,
+}
+
+
+@pytest.mark.parametrize("name", POINT_RULES)
+def test_point_rule_never_shields_by_rounding(name: str) -> None:
     """A proposal that moves ``x`` exactly as braking does (``v_x = 0``, no ``x`` force: a purely tangential action)
-    has ``Ā = 0`` to the last bit, right next to the wall; the two ``Q̄`` terms once summed in different orders gave
-    ``Ā ≈ 1e-14 > η = 0`` and shielded 14–24% of these."""
-    rule = PointCircleShieldingRule()
+    has ``Ā = 0``, right next to the wall; the two ``Q̄`` terms once summed in different orders gave ``Ā ≈ 1e-14 > η = 0``
+    and shielded 14–24% of these."""
+    rule = POINT_RULES[name]()
     rng = np.random.default_rng(0)
     for x in (2.1, 2.2, 2.3, 2.4):
         n = 200
@@ -563,5 +578,125 @@ def test_point_rule_never_shields_by_rounding() -> None:
         decision = rule.shield(obs, tangential)
         assert not decision.intervened.any()
         np.testing.assert_array_equal(decision.advantage, 0.0)
+    # the state of the report: coasting with a = (0, 0), Ā was 7e-15
+    at_rest_in_x = rule.shield(np.array([[2.3, 0.0, 0.0, 2.0]]), np.zeros((1, 2)))
+    assert not at_rest_in_x.intervened[0] and at_rest_in_x.advantage[0] == 0.0
     pushing_out = rule.shield(np.array([[2.4, 0.0, 0.5, 0.0]]), np.array([[1.0, 0.0]]))
     assert pushing_out.intervened[0]
+
+
+def test_advantage_within_rounding_of_zero_is_zero() -> None:
+    """``Ā`` is 0 where its two terms differ by rounding only; a real difference, however small, stays."""
+    q = np.array([100.0, 3.0, 0.0, 1e-3, np.nan])
+    other = np.array([100.0 + 4e-14, 3.0 - 2e-15, 0.0, 1e-3 + 1e-9, 1.0])
+    advantage = advantage_from_values(q, other)
+    np.testing.assert_array_equal(advantage[:3], 0.0)
+    assert advantage[3] == pytest.approx(-1e-9) and np.isnan(advantage[4])
+
+
+class SummedBackwards(PointCircleShieldingRule):
+    """The Point rule with its batch's halves summed in another order: the backup row's ``Q̄`` differs in the last bits."""
+
+    def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        q = super().cost_value(obs, actions)
+        return q * (1.0 + 3e-16 * (np.arange(len(q)) >= len(q) // 2))
+
+
+def test_backup_is_never_shielded_whatever_the_summation_order() -> None:
+    rule = SummedBackwards()
+    obs = sample_safe_states(500, np.random.default_rng(4))
+    decision = rule.shield(obs, rule.backup_action(obs))
+    assert not decision.intervened.any()
+    np.testing.assert_array_equal(decision.advantage, 0.0)
+
+
+def sample_safe_states(n: int, rng: np.random.Generator) -> np.ndarray:
+    """States across the strip and the whole ``y`` range (its limit included), at any speed up to the maximum."""
+    speed, angle = rng.uniform(0.0, PARAMS.max_speed, n), rng.uniform(0.0, 2.0 * np.pi, n)
+    x, y = rng.uniform(-PARAMS.x_limit, PARAMS.x_limit, n), rng.uniform(-PARAMS.y_limit, PARAMS.y_limit, n)
+    return np.stack([x, y, speed * np.cos(angle), speed * np.sin(angle)], axis=1)
+
+
+def rolled_cost(rule: PointCircleShieldingRule, obs: np.ndarray, actions: np.ndarray, steps: int = 3000) -> np.ndarray:
+    """``Q̄`` by brute force: "``a``, then the backup" for ``steps`` steps, every discounted shaped cost summed."""
+    state, q, running = point_step(obs, np.clip(actions, -1.0, 1.0), PARAMS), np.zeros(len(obs)), np.ones(len(obs), bool)
+    for t in range(steps):
+        unsafe = point_is_unsafe(state, PARAMS)
+        cost = shaped_cost(point_distance_to_unsafe(state, PARAMS), rule.alpha)
+        q += running * rule.gamma ** (t + 1) * np.where(unsafe, 1.0 / (1.0 - rule.gamma), cost)
+        running &= ~unsafe
+        state = point_step(state, rule.backup_action(state), PARAMS)
+    return q
+
+
+@pytest.mark.parametrize("name", POINT_RULES)
+def test_point_q_is_the_backups_discounted_cost(name: str) -> None:
+    """``Q̄`` with its fixed horizon, tail and settling equals the brute-force sum over 3000 steps (γ^3000 ≈ 1e-13)."""
+    rule = POINT_RULES[name]()
+    rng = np.random.default_rng(5)
+    obs, actions = sample_safe_states(3000, rng), rng.uniform(-1.0, 1.0, (3000, 2))
+    np.testing.assert_allclose(rule.cost_value(obs, actions), rolled_cost(rule, obs, actions), rtol=0, atol=1e-9)
+
+
+def test_wall_backup_brakes_x_and_keeps_y_unless_near_its_limit() -> None:
+    wall, paper = PointCircleShieldingRule(), paper_point_rule()
+    obs = np.array([[2.0, 1.0, 1.0, 2.0], [0.0, 14.0, 0.0, 1.5], [0.0, -14.0, 0.0, 1.5]])
+    np.testing.assert_array_equal(wall.backup_action(obs), [[-1.0, 0.0], [0.0, -1.0], [0.0, -1.0]])
+    np.testing.assert_array_equal(paper.backup_action(obs), [[-1.0, -1.0], [0.0, -1.0], [0.0, -1.0]])
+    # from outside its y zone, the wall backup stops x and never lets y reach its band
+    banded = PointCircleShieldingRule(alpha=0.5)
+    states = sample_safe_states(2000, np.random.default_rng(6))
+    outside = np.abs(states[:, 1]) < banded.y_zone
+    furthest_y = np.abs(states[:, 1])
+    for _ in range(400):
+        states = point_step(states, banded.backup_action(states), PARAMS)
+        furthest_y = np.maximum(furthest_y, np.abs(states[:, 1]))
+    assert np.all(np.abs(states[:, 2]) < 1e-9)
+    assert furthest_y[outside].max() <= PARAMS.y_limit - banded.alpha
+    assert furthest_y[outside].max() > banded.y_zone  # some rows ran into the zone and were braked there
+    with pytest.raises(ValueError, match="backup"):
+        PointCircleShieldingRule(backup="stop")
+
+
+def test_the_papers_point_rule_is_registered_by_name() -> None:
+    venv = DummyVecEnv([lambda: gym.make("SafePointCircle-v0")])
+    rule = resolve_shielding_rule(PAPER_POINT_RULE, venv, required=True)
+    assert isinstance(rule, PointCircleShieldingRule) and (rule.alpha, rule.backup) == (0.5, "sailr")
+    default = resolve_shielding_rule("auto", venv, required=True)
+    assert (default.alpha, default.backup) == (0.0, "wall")
+    # the paper's band: coasting at 1.0 from 1.8 would stop inside it (2.4 > 2.0), the default rule lets it coast
+    coasting = (np.array([[1.8, 0.0, 1.0, 0.0]]), np.zeros((1, 2)))
+    assert rule.shield(*coasting).intervened[0] and not default.shield(*coasting).intervened[0]
+
+
+def test_scripted_lap_runs_along_the_wall_under_the_default_rule() -> None:
+    """The return ceiling (docs/results.md): the lap at |x| = 2.48 is never overridden by the default rule and scores
+    what it scores unshielded; the paper's rule never lets it past the band's edge, |x| = 2.0, and overrides it."""
+    unshielded = run_scripted_lap(2.48)
+    shielded = run_scripted_lap(2.48, PointCircleShieldingRule())
+    assert not unshielded.violated and unshielded.max_abs_x > 2.48 and unshielded.episode_return > 200.0
+    assert shielded == unshielded
+    paper = run_scripted_lap(2.48, paper_point_rule())
+    assert paper.max_abs_x <= 2.0 and paper.interventions > 400 and paper.episode_return < 0.1 * unshielded.episode_return
+
+
+def test_shield_wrapper_takes_a_registered_rules_name() -> None:
+    assert ShieldWrapper(gym.make("SafePointCircle-v0", alpha=0.2), "auto").rule.alpha == 0.2  # the env's own rule
+    assert ShieldWrapper(gym.make("SafePointCircle-v0"), PAPER_POINT_RULE).rule.backup == "sailr"
+    with pytest.raises(ValueError, match="No shielding rule is registered for env id 'Pendulum-v1'"):
+        ShieldWrapper(gym.make("Pendulum-v1"), "auto")
+    with pytest.raises(TypeError, match="not None"):
+        ShieldWrapper(gym.make("SafePointCircle-v0"), None)  # type: ignore[arg-type]
+
+
+def test_deployment_shields_a_model_trained_behind_the_wrapper() -> None:
+    """A model shielded by ``ShieldWrapper`` (no rule of its own) is deployed with its training envs' rule."""
+    venv = DummyVecEnv([lambda: ShieldWrapper(gym.make("SafePointCircle-v0"), "auto")])
+    model = PDO("MlpPolicy", venv, **TINY_ROLLOUT)
+    assert deployment_rule(model) is venv.envs[0].rule
+    model.predict = lambda *args, **kwargs: (np.array([1.0, 0.0], dtype=np.float32), None)  # into the wall
+    make = lambda: gym.make("SafePointCircle-v0", max_episode_steps=60)  # noqa: E731
+    shielded = evaluate_deployment(model, make, n_eval_episodes=1, shielded=True)
+    unshielded = evaluate_deployment(model, make, n_eval_episodes=1, shielded=False)
+    assert shielded["mean_violations"] == 0.0 and shielded["mean_interventions"] > 0
+    assert unshielded["mean_violations"] == 1.0

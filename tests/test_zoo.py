@@ -25,6 +25,8 @@ from tiny_hyperparams import TINY_ROLLOUT, TINY_ZOO
 from sppo_sb3 import zoo
 from sppo_sb3.algorithms import ALGORITHMS, DISPLAY_ORDER, ZOO_BASELINES, Algorithm
 from sppo_sb3.common.monitor import COST_INFO_KEYWORDS, CostEvalCallback, EpisodeCostInfo, cost_monitored_make_vec_env
+from sppo_sb3.evaluation import deployment_rule
+from sppo_sb3.shield import ShieldingRule
 
 REPO = Path(__file__).resolve().parents[1]
 HYPERPARAMS = REPO / "hyperparams"
@@ -148,8 +150,9 @@ def test_train_cli_prints_safety_summary(tmp_path: Path) -> None:
 
 
 def _yml_file_entries() -> list[tuple[Path, str]]:
-    """Every entry of ``hyperparams/*.yml`` and of its variant folders (``small/``, ...; ``dmc/`` has test_dmc.py)."""
-    variants = [path for path in sorted(HYPERPARAMS.glob("*/*.yml")) if path.parent.name != "dmc"]
+    """Every entry of ``hyperparams/*.yml`` and of its variant folders (``small/``, ``point_sweep/NAME/``, ...; ``dmc/``
+    has test_dmc.py)."""
+    variants = [path for path in sorted(HYPERPARAMS.glob("*/**/*.yml")) if path.relative_to(HYPERPARAMS).parts[0] != "dmc"]
     files = sorted(HYPERPARAMS.glob("*.yml")) + variants
     return [(path, env_id) for path in files for env_id in yaml.safe_load(path.read_text())]
 
@@ -185,6 +188,8 @@ def test_yml_entry_constructs(config: Path, env_id: str, tmp_path: Path) -> None
     model, _ = manager.setup_experiment()
     assert isinstance(model, cls)
     assert model.n_envs >= 1
+    if "ShieldWrapper" in str(unprocessed.get("env_wrapper", "")):  # shielded through rl-zoo3's env_wrapper
+        assert isinstance(deployment_rule(model), ShieldingRule)
     model.env.close()
 
 

@@ -10,6 +10,7 @@ built on it by the shield registry.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -90,7 +91,7 @@ class SafePointCircleEnv(gym.Env[np.ndarray, np.ndarray]):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}  # noqa: RUF012
     observation_space: gym.spaces.Box
 
-    def __init__(self, alpha: float = 0.5, render_mode: str | None = None) -> None:
+    def __init__(self, alpha: float = 0.0, render_mode: str | None = None) -> None:
         self.params = PointParams()
         self.alpha = alpha
         self.render_mode = render_mode
@@ -128,3 +129,31 @@ class SafePointCircleEnv(gym.Env[np.ndarray, np.ndarray]):
         px, py = ((15 + self.state[:2]) * scale).astype(int).clip(2, size - 3)
         img[size - 1 - py - 2 : size - py + 1, px - 2 : px + 3] = 0
         return img
+
+
+def scripted_lap_action(state: np.ndarray, x_target: float, params: PointParams) -> np.ndarray:
+    """A scripted lap: run anticlockwise at full speed around the circle, cut to the strip ``|x| <= x_target``.
+
+    The desired velocity follows the circle's tangent with a radial pull back to it; towards the wall its ``x`` part is
+    capped by the speed that a braking of 90% force still stops at ``x_target``, and the speed freed is put along the
+    wall. The force is what reaches the desired velocity in one step, clipped to the action box. A reference for what
+    the task's return allows, with and without a shield, not a policy to learn from.
+
+    :param state: one state ``[x, y, vx, vy]``.
+    :param x_target: the ``|x|`` the lap runs along the walls at.
+    :param params: the task constants.
+    :return: the action, in [-1, 1]².
+    """
+    x, y, velocity = state[0], state[1], state[2:4]
+    r = math.hypot(x, y)
+    out = np.array([x, y]) / r if r > 1e-6 else np.array([0.0, 1.0])
+    tangent = np.array([-out[1], out[0]])
+    desired = params.max_speed * tangent + (params.radius - r) * out
+    cap = max(math.sqrt(2.0 * 0.9 * max(x_target - abs(x), 0.0)) - 0.05, 0.0)
+    if desired[0] * x > 0 and abs(desired[0]) > cap:
+        desired[0] = math.copysign(cap, x)
+        desired[1] = math.copysign(math.sqrt(max(params.max_speed**2 - cap**2, 0.0)), tangent[1])
+    speed = float(np.linalg.norm(desired))
+    if speed > params.max_speed:
+        desired *= params.max_speed / speed
+    return np.clip(params.mass * (desired - velocity) / params.dt, -1.0, 1.0)

@@ -96,7 +96,8 @@ class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
     :param policy: the policy model ("MlpPolicy": :class:`~sppo_sb3.common.cost_policy.CostActorCriticPolicy`).
     :param env: the environment (must report ``info["cost"]``), or its registered id.
     :param shield: the shielding rule; ``"auto"``: the rule registered for the env's id
-        (:func:`~sppo_sb3.shield.default_shielding_rule`); another string: the rule registered for that env id;
+        (:func:`~sppo_sb3.shield.default_shielding_rule`); another string: the rule registered under that name (an env id, or a
+        variant such as ``"SafePointCircle-v0:paper"``, the paper's Point rule);
         ``None``: the envs are already wrapped in ``ShieldWrapper`` (else SAILR runs as plain PPO, with a warning).
         ``"auto"`` without a registered rule is an error. The rule in use is ``model.shield_rule``; it is saved with
         the model, and ``SAILR.load`` raises where it cannot be rebuilt: pass it with

@@ -44,6 +44,19 @@ class ShieldDecision:
     advantage: np.ndarray
 
 
+#: relative tolerance of ``Ā`` on the scale of its two ``Q̄`` terms: a difference within it is rounding (two sums of
+#: the same costs in other orders), so ``Ā`` is 0 there and the action is not shielded. It widens ``η`` by at most
+#: ``2 · ADVANTAGE_RTOL · max Q̄`` (2e-10 on the shaped scale's ``[0, γ / (1 - γ)]``), far below any cost that matters.
+ADVANTAGE_RTOL = 1e-12
+
+
+def advantage_from_values(q_action: np.ndarray, q_backup: np.ndarray) -> np.ndarray:
+    """``Ā = Q̄(s, a) - Q̄(s, ζ(s))``, exactly 0 where the two agree up to rounding (:data:`ADVANTAGE_RTOL`); NaN stays."""
+    advantage = q_action - q_backup
+    rounding = np.abs(advantage) <= ADVANTAGE_RTOL * (np.abs(q_action) + np.abs(q_backup))
+    return np.where(rounding, 0.0, advantage)
+
+
 def in_shielding_set(advantage: np.ndarray, eta: float) -> np.ndarray:
     """Membership test of the shielding set: ``(s, a) ∈ I  ⇔  Ā(s, a) > η`` (Section III-B, used by eq. 12).
 
@@ -153,12 +166,15 @@ class ShieldingRule(ABC):
         return self.eta if self.value_scale == "definition2" else (1.0 - self.discount) * self.eta
 
     def advantage(self, obs: np.ndarray, actions: np.ndarray, backup: np.ndarray | None = None) -> np.ndarray:
-        """``Ā(s, a) = Q̄(s, a) - Q̄(s, ζ(s))``, both terms evaluated in one batched call of :meth:`cost_value`."""
+        """``Ā(s, a) = Q̄(s, a) - Q̄(s, ζ(s))``, both terms evaluated in one batched call of :meth:`cost_value`.
+
+        ``Ā`` is 0 where the two terms agree up to rounding (:func:`advantage_from_values`) and where ``a = ζ(s)``.
+        """
         if backup is None:
             backup = self.checked_backup(obs, actions.shape[1])
         n = len(obs)
         q = self.checked_cost_value(np.concatenate([obs, obs]), np.concatenate([actions, backup]))
-        adv = q[:n] - q[n:]
+        adv = advantage_from_values(q[:n], q[n:])
         # Ā(s, ζ(s)) = 0 by definition (Proposition 1); a batched network may differ in the last bit by row position
         adv[np.all(actions == backup, axis=1)] = 0.0
         return adv

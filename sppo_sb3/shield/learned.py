@@ -17,7 +17,7 @@ import torch as th
 from stable_baselines3.common.utils import get_device
 from torch import nn
 
-from sppo_sb3.shield.base import ShieldingRule
+from sppo_sb3.shield.base import ShieldingRule, advantage_from_values
 
 BackupPolicy = Callable[[np.ndarray], np.ndarray]
 
@@ -188,7 +188,7 @@ class LearnedCostCriticRule(ShieldingRule):
         """
         if backup is None:
             backup = self.backup_action(obs)
-        return self.cost_value(obs, actions) - self.cost_value(obs, backup)
+        return advantage_from_values(self.cost_value(obs, actions), self.cost_value(obs, backup))
 
     # ----------------------------------------------------------------------------------------------- learning
     def update(

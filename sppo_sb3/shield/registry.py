@@ -17,12 +17,16 @@ from stable_baselines3.common.vec_env import VecEnv
 from sppo_sb3.envs.velocity import VELOCITY_TASKS
 from sppo_sb3.shield.base import ShieldingRule
 from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule
-from sppo_sb3.shield.point import PointCircleShieldingRule
+from sppo_sb3.shield.point import PointCircleShieldingRule, paper_point_rule
 from sppo_sb3.shield.velocity import velocity_shielding_rule
 
-#: the rule of each task (``shield="auto"``), by gymnasium id: a class or factory, called for every model
+#: a variant of a task's rule, named ``"<env id>:<variant>"``: pass the name as ``shield`` to train with it
+PAPER_POINT_RULE = "SafePointCircle-v0:paper"
+#: the rule of each task (``shield="auto"``), by gymnasium id, and named variants: a class or factory, called for
+#: every model
 SHIELDING_RULES: dict[str, Callable[..., ShieldingRule]] = {
     "SafePointCircle-v0": PointCircleShieldingRule,
+    PAPER_POINT_RULE: paper_point_rule,  # the paper's and SAILR's: brake both axes, band 0.5 (Table I's first rows)
     "SafeHalfCheetahHeight-v1": HalfCheetahHeightShieldingRule,
     **{task.env_id: functools.partial(velocity_shielding_rule, task) for task in VELOCITY_TASKS},
 }
@@ -105,13 +109,23 @@ def default_shielding_rule(env_id: str | None, env: gym.Env | VecEnv | None = No
     return rule
 
 
-def resolve_shielding_rule(shield: ShieldingRule | str | None, env: VecEnv | None, required: bool) -> ShieldingRule | None:
+def _env_id(env: gym.Env | VecEnv) -> str | None:
+    """The gymnasium id the (first) env was made with, or ``None`` (not made with ``gymnasium.make``)."""
+    spec = env.get_attr("spec", indices=[0])[0] if isinstance(env, VecEnv) else env.spec
+    return spec.id if spec is not None else None
+
+
+def resolve_shielding_rule(
+    shield: ShieldingRule | str | None, env: gym.Env | VecEnv | None, required: bool
+) -> ShieldingRule | None:
     """The rule an algorithm's ``shield`` argument names.
 
     :param shield: a rule (used as is), ``None`` (no shield), ``"auto"`` (the rule registered for the env's id) or
-        another env id (the rule registered for it).
-    :param env: the training env, whose id ``"auto"`` looks up (``None``: not known yet, no rule). A rule registered
-        for the env's own id is built from the env's parameters (:func:`default_shielding_rule`).
+        another registered name: an env id or a variant's ``"<env id>:<variant>"`` (e.g. :data:`PAPER_POINT_RULE`),
+        whose rule is built with its own defaults.
+    :param env: the training env (a VecEnv or a gymnasium env), whose id ``"auto"`` looks up (``None``: not known yet,
+        no rule). A rule registered for the env's own id is built from the env's parameters
+        (:func:`default_shielding_rule`).
     :param required: raise when no rule is found (SAILR cannot work without one); else ``"auto"`` without a rule
         warns that the algorithm runs unshielded (pass ``shield=None`` to say so and silence it).
     """
@@ -121,8 +135,7 @@ def resolve_shielding_rule(shield: ShieldingRule | str | None, env: VecEnv | Non
         raise TypeError(f"shield must be a ShieldingRule, 'auto', an env id or None, got {shield!r}.")
     if shield == "auto" and env is None:
         return None
-    spec = env.get_attr("spec", indices=[0])[0] if env is not None else None
-    own_id = spec.id if spec is not None else None
+    own_id = _env_id(env) if env is not None else None
     env_id = own_id if shield == "auto" else shield
     rule = default_shielding_rule(env_id, env if env_id == own_id else None)
     if rule is not None:
@@ -133,7 +146,8 @@ def resolve_shielding_rule(shield: ShieldingRule | str | None, env: VecEnv | Non
         else f"No shielding rule is registered for env id {env_id!r}"
     )
     fix = (
-        "pass shield=YourRule() (a sppo_sb3.shield.ShieldingRule) or register one with "
+        "pass your rule (a sppo_sb3.shield.ShieldingRule: shield=YourRule() to an algorithm, "
+        "ShieldWrapper(env, YourRule()) to a wrapper) or register one with "
         "sppo_sb3.shield.register_shielding_rule(env_id, YourRule)"
     )
     if required or shield != "auto":

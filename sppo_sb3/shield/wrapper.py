@@ -16,6 +16,7 @@ from sppo_sb3.common.keys import (
     PROPOSED_ACTION_KEY,
 )
 from sppo_sb3.shield.base import ShieldDecision, ShieldingRule
+from sppo_sb3.shield.registry import resolve_shielding_rule
 
 OnIntervention = Literal["execute", "absorb", "takeover"]
 
@@ -44,7 +45,10 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
     (:meth:`ShieldingRule.check_action_space`).
 
     :param env: the env to protect; its observations are what the rule reads.
-    :param rule: the shielding rule.
+    :param rule: the shielding rule, or a registered rule's name: ``"auto"`` (the rule of the env's own id, built from
+        the env's parameters), an env id or a variant such as ``"SafePointCircle-v0:paper"``. A name lets a YAML file
+        shield any algorithm, through rl-zoo3's ``env_wrapper``:
+        ``env_wrapper: [{sppo_sb3.shield.ShieldWrapper: {rule: auto}}]``.
     :param on_intervention: ``"execute"``, ``"absorb"`` or ``"takeover"`` (see above).
     :param penalty: ``R̃ <= 0`` of the absorbing step; ``None``: the rule's ``penalty``.
     """
@@ -52,7 +56,7 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
     def __init__(
         self,
         env: gym.Env,
-        rule: ShieldingRule,
+        rule: ShieldingRule | str,
         on_intervention: OnIntervention = "execute",
         penalty: float | None = None,
     ) -> None:
@@ -63,9 +67,12 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
             raise ValueError(f"on_intervention must be 'execute', 'absorb' or 'takeover', got {on_intervention!r}.")
         if penalty is not None and penalty > 0:
             raise ValueError(f"The absorbing penalty R̃ must be <= 0 (eq. 7), got {penalty}.")
-        self.rule = rule
+        resolved = resolve_shielding_rule(rule, env, required=True)
+        if resolved is None:
+            raise TypeError("ShieldWrapper needs a shielding rule: a ShieldingRule or a registered rule's name, not None.")
+        self.rule = resolved
         self.on_intervention = on_intervention
-        self.penalty = rule.penalty if penalty is None else penalty
+        self.penalty = resolved.penalty if penalty is None else penalty
         self._box: gym.spaces.Box = env.action_space
         self._obs: np.ndarray | None = None
         self._checked = False

@@ -75,7 +75,8 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
     :param horizon: length ``H`` of the sequences TOPO trains on.
     :param target_update_interval: update the EMA target every this many TOPO updates.
     :param shield: a :class:`ShieldingRule`, ``"auto"`` (the task's registered rule; where there is none, SPPO warns
-        and runs unshielded) or ``None`` (unshielded, on purpose). The rule in use is :attr:`shield_rule` (``None``:
+        and runs unshielded), another registered rule's name (e.g. ``"SafePointCircle-v0:paper"``, the paper's Point
+        rule) or ``None`` (unshielded, on purpose). The rule in use is :attr:`shield_rule` (``None``:
         unshielded); it is saved with the model, and ``SPPO.load`` raises where it cannot be rebuilt: pass it with
         ``custom_objects={"shield_rule": rule}``, or ``custom_objects={"shield": None}`` to load unshielded.
     :param absorbing: what ``B̃`` records after an intervention. ``"terminate"`` is the paper's ``M̃`` (nothing more of
