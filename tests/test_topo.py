@@ -16,9 +16,10 @@ import pytest
 import torch as th
 
 from sppo_sb3.sppo.buffers import SequenceSamples
+from sppo_sb3.sppo.compile import CompiledFunction
 from sppo_sb3.sppo.optim import init_optimizer_state
 from sppo_sb3.sppo.policies import TOLD, zero_last_layer
-from sppo_sb3.sppo.topo import TOPOConfig, model_loss, td_target, topo_update
+from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, model_loss, td_target, topo_update
 
 OBS, ACT, H, B = 3, 2, 3, 5
 
@@ -98,3 +99,47 @@ def test_policy_step_moves_pi_alone(termination: bool) -> None:
     assert changed and all(name.startswith("pi.") for name in changed)
     for name, p in target.named_parameters():  # EMA weight 0: the target is untouched too
         np.testing.assert_array_equal(p.detach().numpy(), before[name].numpy())
+
+
+@pytest.mark.parametrize("path", ["eager", "compiled"])
+def test_update_logs_the_hand_computed_terms_and_steps_pi_alone(path: str) -> None:
+    """The whole update, eager and compiled: its reward, value and consistency terms equal eqs. 14–17 computed by hand
+    (TD target from the *target* twin heads' minimum, no bootstrap after a terminal, consistency against the *target*
+    encoder), and with the model loss switched off the step moves ``π`` alone."""
+    th.manual_seed(0)
+    model = TOLD(OBS, ACT, latent_dim=4, encoder_dim=8, hidden_dim=8)
+    for layer in model.q1, model.q2, model.reward:  # non-zero online heads: a gradient for π, terms that are not 0
+        th.nn.init.normal_([m for m in layer.modules() if isinstance(m, th.nn.Linear)][-1].weight)
+    target = copy.deepcopy(model)
+    zero_last_layer(target.q1, 3.0)
+    zero_last_layer(target.q2, 5.0)
+    zero_last_layer(target.encoder, 0.25)
+    terminals = th.zeros(H, B)
+    terminals[1, 2] = terminals[2, 0] = 1.0
+    data = batch(terminals)
+    cfg = TOPOConfig(gamma=0.9, rho=0.5, reward_coef=0.0, value_coef=0.0, consistency_coef=0.0, termination_coef=0.0)
+
+    with th.no_grad():  # eqs. 14–17 by hand
+        z, reward, value, consistency = model.encode(data.observations), 0.0, 0.0, 0.0
+        for i in range(H):
+            target_q = data.rewards[i] + 0.9 * (1.0 - terminals[i]) * 3.0
+            q1, q2 = (head.squeeze(-1) for head in model.q(z, data.actions[i]))
+            reward += 0.5**i * ((model.predicted_reward(z, data.actions[i]).squeeze(-1) - data.rewards[i]) ** 2).mean()
+            value += 0.5**i * ((q1 - target_q) ** 2 + (q2 - target_q) ** 2).mean()
+            z = model.next_latent(z, data.actions[i])
+            consistency += 0.5**i * ((z - 0.25) ** 2).mean()
+
+    optimizer = th.optim.Adam([p for name, p in model.named_parameters() if not name.startswith("pi.")], lr=1e-2)
+    pi_optimizer = th.optim.Adam(model.pi.parameters(), lr=1e-2)
+    for opt in optimizer, pi_optimizer:
+        init_optimizer_state(opt)
+    before = {name: p.detach().clone() for name, p in model.named_parameters()}
+    update = CompiledFunction(topo_update, path == "compiled", th.device("cpu"), "TOPO update")
+    stats = update(model, target, optimizer, pi_optimizer, data, th.zeros(H, B, ACT), th.tensor(1e-2), th.tensor(0.0), cfg)
+    assert update.compiled == (path == "compiled")
+    logged = dict(zip(TOPO_STATS, stats.tolist(), strict=True))
+    assert logged["reward"] == pytest.approx(float(reward), rel=1e-5)
+    assert logged["value"] == pytest.approx(float(value), rel=1e-5)
+    assert logged["consistency"] == pytest.approx(float(consistency), rel=1e-5)
+    changed = {name for name, p in model.named_parameters() if not th.equal(p, before[name])}
+    assert changed and all(name.startswith("pi.") for name in changed)
