@@ -28,6 +28,7 @@ from sppo_sb3.common.costs import MissingCostError
 from sppo_sb3.common.gae import compute_gae
 from sppo_sb3.common.keys import EPISODE_COST_ESTIMATE_LOG_KEY, LAGRANGE_MULTIPLIER_LOG_KEY
 from sppo_sb3.common.lagrange import DEFAULT_COST_LIMIT
+from sppo_sb3.common.safety import SafetyMetrics
 from sppo_sb3.cpo import CPO
 from sppo_sb3.csc import CSC
 from sppo_sb3.experiments.configs import REPO_HYPERPARAMS_DIR as HYPERPARAMS_DIR
@@ -249,3 +250,13 @@ def test_constrained_baselines_share_one_cost_limit(algo: type) -> None:
     with open(HYPERPARAMS_DIR / f"{algo.__name__.lower()}.yml") as file:
         entries = yaml.safe_load(file)
     assert {task: entry["cost_limit"] for task, entry in entries.items()} == dict.fromkeys(entries, DEFAULT_COST_LIMIT)
+
+
+def test_final_summary_gives_the_last_episodes_return() -> None:
+    """The line printed after training: the mean return of the recent window and of the last FINAL_EPISODES."""
+    metrics = SafetyMetrics(n_envs=1)
+    assert "(last 0)=nan  " in metrics.format_summary()  # no episode yet: no final mean either
+    for episode_return in [0.0, 0.0, 10.0, 20.0, 30.0, 40.0, 50.0]:
+        metrics.update(np.array([episode_return]), np.zeros(1), np.ones(1, dtype=bool))
+    line = metrics.format_summary()
+    assert "mean return (last 7)=21.43 (last 5: 30.00)" in line and "cumulative violations=0" in line

@@ -17,6 +17,9 @@ from stable_baselines3.common.logger import Logger
 from sppo_sb3.common.costs import costs_from_infos
 from sppo_sb3.common.keys import INTERVENED_KEY, SAFETY_LOG_PREFIX
 
+#: the final summary also gives the mean return of this many last episodes: where a short run has got to
+FINAL_EPISODES = 5
+
 
 class SafetyMetrics:
     """Accumulates per-episode and cumulative safety figures over a VecEnv's steps.
@@ -131,8 +134,10 @@ class SafetyMetrics:
     def format_summary(self) -> str:
         """One human-readable line, printed at the end of training."""
         s = self.summary()
+        last = list(self.recent)[-FINAL_EPISODES:]
+        final = f" (last {len(last)}: {np.mean([ep['return'] for ep in last]):.2f})" if last else ""
         return (
-            f"episodes={int(s['episodes'])}  mean return (last {len(self.recent)})={s['ep_return_mean']:.2f}  "
+            f"episodes={int(s['episodes'])}  mean return (last {len(self.recent)})={s['ep_return_mean']:.2f}{final}  "
             f"cumulative violations={int(s['cumulative_violations'])}  safety rate={s['safety_rate']:.2f}%  "
             f"shield interventions={int(s['cumulative_interventions'])}"
         )
