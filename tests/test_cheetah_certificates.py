@@ -37,15 +37,17 @@ def observations_near_violations(n: int, seed: int = 0) -> np.ndarray:
 
 def test_warm_starts_match_predicted_states_only() -> None:
     warm = WarmStarts(capacity=2, horizon=3, n_controls=1, tolerance=1e-5)
-    keys, plans = np.array([[0.0, 1.0], [2.0, 3.0]]), np.arange(6.0).reshape(2, 3, 1)
-    warm.replace(np.array([-1]), keys, plans)
-    found, used = warm.lookup(np.array([[2.0, 3.0 + 1e-7], [0.0, 1.001]]))
+    keys, plans, states = np.array([[0.0, 1.0], [2.0, 3.0]]), np.arange(6.0).reshape(2, 3, 1), np.array([[9.0], [8.0]])
+    warm.replace(np.array([-1]), keys, plans, states)
+    found, used, predicted = warm.lookup(np.array([[2.0, 3.0 + 1e-7], [0.0, 1.001]]))
     assert used.tolist() == [1, -1]
     np.testing.assert_array_equal(found, [plans[1], np.zeros((3, 1))])  # no match: the zero plan
-    warm.replace(used, np.array([[5.0, 5.0]]), np.full((1, 3, 1), 7.0))  # the used entry goes, the newest is kept
+    np.testing.assert_array_equal(predicted, [[8.0], [np.nan]])  # ... and no state
+    warm.replace(used, np.array([[5.0, 5.0]]), np.full((1, 3, 1), 7.0), np.array([[7.0]]))  # the used entry goes
     np.testing.assert_array_equal(warm.keys, [[0.0, 1.0], [5.0, 5.0]])
-    warm.replace(np.array([-1]), np.array([[6.0, 6.0]]), np.full((1, 3, 1), 8.0))  # over capacity: the oldest goes
-    np.testing.assert_array_equal(warm.keys, [[5.0, 5.0], [6.0, 6.0]])
+    np.testing.assert_array_equal(warm.states, [[9.0], [7.0]])
+    warm.replace(np.array([-1]), np.array([[6.0, 6.0]]), np.full((1, 3, 1), 8.0), np.array([[6.0]]))  # over capacity
+    np.testing.assert_array_equal(warm.keys, [[5.0, 5.0], [6.0, 6.0]])  # the oldest went
 
 
 def test_the_bounds_behind_the_certificates() -> None:

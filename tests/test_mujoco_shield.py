@@ -227,6 +227,36 @@ def test_an_observation_without_a_state_fails_closed() -> None:
     assert decision.intervened[0] and np.all(np.isfinite(decision.actions))
 
 
+def test_a_clipped_observation_the_rule_predicted_has_a_known_state() -> None:
+    """Walker2d's observed velocities are clipped at 10: after a shielded step the rule knows the state it predicted,
+    so a clipped observation it predicted is shielded on that state (the env's, up to rounding); one it did not
+    predict still fails closed."""
+    env = gym.make("Walker2d-v4")
+    rule = small_rule("Walker2d-v4", VelocityConstraint(100.0))  # a limit far away: the proposals pass
+    obs, _ = env.reset(seed=0)
+    env.action_space.seed(0)
+    inner, clipped_steps = env.unwrapped, 0
+    for _ in range(300):
+        known_by_obs = rule.layout.known_states(obs[None])[0]
+        states, known, _, _ = rule.tracked_states(obs[None])
+        assert known[0]  # every observation after a shielded step is known
+        if not known_by_obs:  # the tracked state is the env's, its velocities beyond the clip included
+            clipped_steps += 1
+            np.testing.assert_allclose(states[0, 1 + 1 : 1 + 9], inner.data.qpos[1:], atol=1e-6)
+            np.testing.assert_allclose(states[0, 1 + 9 : 1 + 18], inner.data.qvel, atol=1e-6)
+            assert np.abs(inner.data.qvel).max() > 10.0
+        decision = rule.shield(obs[None], env.action_space.sample()[None].astype(np.float64))
+        assert np.isfinite(decision.advantage[0])
+        obs, _, terminated, truncated, _ = env.step(decision.actions[0])
+        if terminated or truncated:
+            rule.warm_starts.clear()
+            obs, _ = env.reset()
+    assert clipped_steps > 5
+    unpredicted = obs.copy()
+    unpredicted[8:] = 10.0
+    assert np.isnan(rule.shield(unpredicted[None], np.zeros((1, 6))).advantage[0])
+
+
 def test_rule_survives_pickling() -> None:
     rule = small_rule("Ant-v4", VELOCITY["Ant-v4"])
     obs = np.asarray(random_states(gym.make("Ant-v4"), 3)[-1], dtype=np.float64)[None]

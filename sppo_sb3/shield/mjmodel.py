@@ -154,6 +154,12 @@ class MujocoLayout:
             raise ValueError(f"{self.xml_path} compiles to nq={model.nq}, nv={model.nv}; the env has {self.nq}, {self.nv}.")
         return model
 
+    def at_origin(self, states: np.ndarray) -> np.ndarray:
+        """Full physics states as :meth:`states_from_obs` rebuilds them: time 0, the excluded positions 0."""
+        states = np.array(states)
+        states[:, : 1 + self.excluded_positions] = 0.0
+        return states
+
     def states_from_obs(self, model: mujoco.MjModel, obs: np.ndarray) -> np.ndarray:
         """Full physics states ``(B, nstate)`` rebuilt from observations: time 0, the excluded positions 0.
 
@@ -169,7 +175,7 @@ class MujocoLayout:
         return states
 
     def known_states(self, obs: np.ndarray) -> np.ndarray:
-        """``(B,)``: the observation determines the state (no observed velocity at :attr:`velocity_clip`)."""
+        """``(B,)``: the observation alone determines the state (no observed velocity at :attr:`velocity_clip`)."""
         obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
         if self.velocity_clip is None:
             return np.ones(len(obs), dtype=bool)
@@ -178,8 +184,13 @@ class MujocoLayout:
         return np.all(velocities < self.velocity_clip * (1.0 - 1e-12), axis=1)
 
     def obs_from_states(self, states: np.ndarray) -> np.ndarray:
-        """The state part of the observation, ``[qpos[k:], qvel]``, of full physics states ``(B, nstate)``."""
-        return np.ascontiguousarray(states[:, 1 + self.excluded_positions : 1 + self.nq + self.nv])
+        """The state part of the observation, ``[qpos[k:], qvel]``, of full physics states ``(B, nstate)``, as the env
+        reports it (velocities clipped to :attr:`velocity_clip`)."""
+        obs = np.array(states[:, 1 + self.excluded_positions : 1 + self.nq + self.nv])
+        if self.velocity_clip is not None:
+            observed = self.nq - self.excluded_positions
+            obs[:, observed:] = np.clip(obs[:, observed:], -self.velocity_clip, self.velocity_clip)
+        return obs
 
 
 def _excluded_positions(obs: np.ndarray, qpos: np.ndarray, qvel: np.ndarray) -> int | None:

@@ -194,13 +194,19 @@ class MujocoShieldingRule(ShieldingRule):
         before = np.concatenate([states[:, None], after[:, :-1]], axis=1) if "state" in outputs else np.empty(0)
         return ConstraintSteps(self.model, before, after, boundaries[:, :-1], boundaries[:, 1:], self._dt)
 
-    def next_observations(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """State observations ``[qpos[k:], qvel]`` after one env step of ``actions`` ``(M, nu)`` from ``states``."""
+    def next_states(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """Full physics states after one env step of ``actions`` ``(M, nu)`` from ``states``, as rebuilt states are
+        (time and the excluded positions 0)."""
         skip = self.layout.frame_skip
         ctrl = np.ascontiguousarray(np.repeat(actions[:, None], skip, axis=1))
         trajectory = np.empty((len(ctrl), skip, len(states[0])))
         self._rollout(states, ctrl, state=trajectory)
-        return self.layout.obs_from_states(trajectory[:, -1])
+        return self.layout.at_origin(trajectory[:, -1])
+
+    def next_observations(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """State observations ``[qpos[k:], qvel]`` after one env step of ``actions`` ``(M, nu)`` from ``states``, as the
+        env reports them."""
+        return self.layout.obs_from_states(self.next_states(states, actions))
 
     def discounted_cost(self, steps: ConstraintSteps) -> np.ndarray:
         """``J = Σ_t γ^(t+1) ĉ_(t+1)`` (eq. 18) with the absorbing tail ``γ^(t+1)/(1-γ)`` at the first violation.
@@ -281,17 +287,32 @@ class MujocoShieldingRule(ShieldingRule):
 
     # --- the rule -----------------------------------------------------------------------------------------------
 
+    def tracked_states(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The physics states of ``obs``, whether each is known, the warm plans and the warm-start entries used.
+
+        A state is rebuilt from its observation; where the observation does not determine it (a velocity the env
+        clipped), it is the state the rule predicted for that observation when it shielded the step before (the
+        rule's model is the env's, so the prediction is the env's next state up to rounding); with no such
+        prediction it is unknown.
+        """
+        warm, used, predicted = self.warm_starts.lookup(self._state_obs(obs))
+        states = self.layout.states_from_obs(self.model, obs)
+        known = self.layout.known_states(obs)
+        tracked = ~known & (used >= 0)
+        if tracked.any():
+            states[tracked] = predicted[tracked]
+        return states, known | tracked, warm, used
+
     def backup_action(self, obs: np.ndarray) -> np.ndarray:
         """``ζ(s)``: the first action of the MPC plan from ``s`` (around the warm plan stored for ``s``)."""
-        warm, _ = self.warm_starts.lookup(self._state_obs(obs))
-        return self.solve(self.layout.states_from_obs(self.model, obs), warm).plans[:, 0]
+        states, _, warm, _ = self.tracked_states(obs)
+        return self.solve(states, warm).plans[:, 0]
 
     def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """``Q̄(s, a)``: ``J`` of "take ``a``, then the MPC plan re-solved from ``ŝ_1``" (around the warm plan's tail)."""
-        states, actions = self._inputs(obs, actions)
-        warm, _ = self.warm_starts.lookup(self._state_obs(obs))
-        costs = self.solve(states, warm[:, 1:], actions).costs
-        return np.where(self.layout.known_states(obs), costs, np.nan)  # an unknown state: nothing is known of Q̄
+        states, known, warm, _ = self.tracked_states(obs)
+        costs = self.solve(states, warm[:, 1:], self._clipped(actions, len(obs))).costs
+        return np.where(known, costs, np.nan)  # an unknown state: nothing is known of Q̄
 
     def shield(self, obs: np.ndarray, actions: np.ndarray) -> ShieldDecision:
         """Eq. 12 from the warm plans stored for ``obs``; stores the plans to follow from the next states.
@@ -301,17 +322,17 @@ class MujocoShieldingRule(ShieldingRule):
         """
         obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
         actions = np.asarray(actions, dtype=np.float64).reshape(len(obs), -1)
-        states, clipped = self._inputs(obs, actions)
-        warm, used = self.warm_starts.lookup(self._state_obs(obs))
+        states, known, warm, used = self.tracked_states(obs)
+        clipped = self._clipped(actions, len(obs))
         step = (self._shield_certified if self.certify else self._shield_solved)(states, clipped, warm)
         executed = np.where(step.intervened[:, None], step.backup, clipped)
+        next_states = self.next_states(states, executed)
         next_plans = np.concatenate([step.tails, np.zeros_like(step.tails[:, :1])], axis=1)
-        self.warm_starts.replace(used, self.next_observations(states, executed), next_plans)
+        self.warm_starts.replace(used, self.layout.obs_from_states(next_states), next_plans, next_states)
         self._count(len(obs), step)
         safe = np.where(step.intervened[:, None], step.backup, actions)
-        # where the observation does not determine the state, Ā is unknown: the guard of ShieldingRule.shield executes
-        # the backup there (fail closed)
-        advantage = np.where(self.layout.known_states(obs), step.advantage, np.nan)
+        # where the state is unknown, so is Ā: the guard of ShieldingRule.shield executes the backup there (fail closed)
+        advantage = np.where(known, step.advantage, np.nan)
         return ShieldDecision(actions=safe, intervened=step.intervened, advantage=advantage)
 
     def _shield_solved(self, states: np.ndarray, actions: np.ndarray, warm: np.ndarray) -> ShieldStep:
@@ -393,11 +414,9 @@ class MujocoShieldingRule(ShieldingRule):
         self.solve_counts.backup_solves += step.backup_solves
         self.solve_counts.backup_value_solves += step.backup_value_solves
 
-    def _inputs(self, obs: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Physics states rebuilt from ``obs`` and the actions clipped to the control range."""
-        states = self.layout.states_from_obs(self.model, obs)
-        actions = np.asarray(actions, dtype=np.float64).reshape(len(states), -1)
-        return states, np.clip(actions, self.action_low, self.action_high)
+    def _clipped(self, actions: np.ndarray, n: int) -> np.ndarray:
+        """``n`` actions as ``(n, nu)`` floats clipped to the control range (what MuJoCo executes)."""
+        return np.clip(np.asarray(actions, dtype=np.float64).reshape(n, -1), self.action_low, self.action_high)
 
     def _state_obs(self, obs: np.ndarray) -> np.ndarray:
         """The entries of raw observations that hold the state (the warm plans' keys)."""
