@@ -1,10 +1,11 @@
-"""The Lagrange multiplier of the primal-dual baselines (PDO and CSC), defined once.
+"""The Lagrange multiplier of the primal-dual baselines (PDO, CSC and SACLag), defined once.
 
-Both solve the constrained problem of the paper's Section II-B (the CMDP ``max_π J_R(π)  s.t.  J_C(π) <= d``) on its
+They solve the constrained problem of the paper's Section II-B (the CMDP ``max_π J_R(π)  s.t.  J_C(π) <= d``) on its
 Lagrangian ``L(π, λ) = J_R(π) - λ·(J_C(π) - d)``, ``λ >= 0``: a primal (policy) step on the advantage
 ``(A_R - λ·A_C) / (1 + λ)`` and a projected dual (gradient) step on ``λ`` driven by the measured episode cost ``J_C``
 of :class:`~sppo_sb3.common.cost_tracker.EpisodeCostTracker`. The paper's baselines PDO [25] and CSC [28]
-(Section V-A.3) are this scheme with two different cost advantages ``A_C``.
+(Section V-A.3) are this scheme with two different cost advantages ``A_C``; SACLag's primal step is SAC's actor loss
+with the penalty ``λ·Q_C``, also scaled by ``1 / (1 + λ)``.
 """
 
 from __future__ import annotations
