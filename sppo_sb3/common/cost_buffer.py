@@ -4,16 +4,38 @@ baselines), and SB3's ``ReplayBuffer`` plus costs (SACLag)."""
 from __future__ import annotations
 
 from collections.abc import Generator
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 import torch as th
 from gymnasium import spaces
-from stable_baselines3.common.buffers import ReplayBuffer, RolloutBuffer
+from stable_baselines3.common.buffers import BaseBuffer, ReplayBuffer, RolloutBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sppo_sb3.common.costs import costs_from_infos
 from sppo_sb3.common.gae import compute_gae
+
+BufferT = TypeVar("BufferT", bound=BaseBuffer)
+
+
+def cost_buffer_class(given: type[BaseBuffer] | None, required: type[BufferT], algorithm: str, argument: str) -> type[BufferT]:
+    """The buffer class a cost-aware algorithm uses: ``required`` where none is given, else the given one, which must
+    subclass it (it stores the costs).
+
+    :param given: the class the user passed (``rollout_buffer_class`` or ``replay_buffer_class``), or ``None``.
+    :param required: the cost-aware buffer the algorithm needs.
+    :param algorithm: the algorithm's name, for the message.
+    :param argument: the argument's name, for the message.
+    :raises TypeError: where ``given`` does not subclass ``required``.
+    """
+    if given is None:
+        return required
+    if not issubclass(given, required):
+        raise TypeError(
+            f"{algorithm} needs a {required.__name__} (it stores the costs); got {argument}={given.__name__}. "
+            f"Leave {argument}=None or subclass {required.__name__}."
+        )
+    return given
 
 
 class CostRolloutBufferSamples(NamedTuple):

@@ -33,7 +33,7 @@ from stable_baselines3.common.policies import BasePolicy
 from stable_baselines3.common.utils import obs_as_tensor
 from stable_baselines3.common.vec_env import VecEnv
 
-from sppo_sb3.common.cost_buffer import CostRolloutBuffer
+from sppo_sb3.common.cost_buffer import CostRolloutBuffer, cost_buffer_class
 from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
 from sppo_sb3.common.lagrange import lagrangian_advantage
 from sppo_sb3.common.safety_tracking import SafetyTrackingMixin
@@ -94,13 +94,8 @@ class SafeOnPolicyMixin(SafetyTrackingMixin):
     _last_episode_starts: Any
 
     def _setup_model(self) -> None:
-        if self.rollout_buffer_class is None:
-            self.rollout_buffer_class = CostRolloutBuffer
-        if not issubclass(self.rollout_buffer_class, CostRolloutBuffer):
-            raise TypeError(
-                f"{type(self).__name__} needs a CostRolloutBuffer (it stores the costs); got rollout_buffer_class="
-                f"{self.rollout_buffer_class.__name__}. Leave rollout_buffer_class=None or subclass CostRolloutBuffer."
-            )
+        given, name = self.rollout_buffer_class, type(self).__name__
+        self.rollout_buffer_class = cost_buffer_class(given, CostRolloutBuffer, name, "rollout_buffer_class")
         super()._setup_model()  # type: ignore[misc]
         if self.uses_cost_critic and not isinstance(self.policy, CostActorCriticPolicy):
             raise TypeError(

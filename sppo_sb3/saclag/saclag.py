@@ -32,7 +32,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, PyTorch
 from stable_baselines3.common.utils import get_parameters_by_name, polyak_update
 from torch.nn import functional as F
 
-from sppo_sb3.common.cost_buffer import CostReplayBuffer, CostReplayBufferSamples
+from sppo_sb3.common.cost_buffer import CostReplayBuffer, CostReplayBufferSamples, cost_buffer_class
 from sppo_sb3.common.keys import N_UPDATES_LOG_KEY, TRAIN_LOG_PREFIX
 from sppo_sb3.common.lagrange import DEFAULT_COST_LIMIT, LagrangianMixin
 from sppo_sb3.common.safety_tracking import SafetyTrackingMixin
@@ -211,13 +211,8 @@ class SACLag(LagrangianMixin, SafetyTrackingMixin, SAC):
 
     # ------------------------------------------------------------------ set-up
     def _setup_model(self) -> None:
-        if self.replay_buffer_class is None:
-            self.replay_buffer_class = CostReplayBuffer
-        if not issubclass(self.replay_buffer_class, CostReplayBuffer):
-            raise TypeError(
-                f"SACLag needs a CostReplayBuffer (it stores the costs); got replay_buffer_class="
-                f"{self.replay_buffer_class.__name__}. Leave replay_buffer_class=None or subclass CostReplayBuffer."
-            )
+        given = self.replay_buffer_class
+        self.replay_buffer_class = cost_buffer_class(given, CostReplayBuffer, "SACLag", "replay_buffer_class")
         if not issubclass(self.policy_class, SACLagPolicy):
             raise TypeError(
                 f"SACLag learns a cost critic: its policy must be a SACLagPolicy (use 'MlpPolicy' or subclass "
