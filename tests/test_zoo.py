@@ -207,6 +207,20 @@ def test_sppo_sampler_builds_models() -> None:
     assert zoo.convert_sppo_params(trial.params) == zoo.sample_sppo_params(optuna.trial.FixedTrial(trial.params), 1, 1, {})
 
 
+def test_saclag_sampler_builds_models() -> None:
+    """rl-zoo3's SAC search space (registered for SACLag) gives SACLag arguments it accepts."""
+    from rl_zoo3 import hyperparams_opt as opt
+
+    from sppo_sb3.saclag import SACLag
+
+    zoo.register_algos()
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0))
+    for _ in range(2):
+        params = opt.HYPERPARAMS_SAMPLER["saclag"](study.ask(), 1, 1, {"using_her_replay_buffer": False})
+        model = SACLag("MlpPolicy", ENV, buffer_size=1_000, **params)
+        assert model.batch_size == params["batch_size"] and model.gradient_steps == params["gradient_steps"]
+
+
 def test_optimize_with_sqlite_storage(tmp_path: Path) -> None:
     """Two trials through rl-zoo3's -optimize on an RDB (SQLite) study, with the violation penalty objective."""
     from sppo_sb3 import train
