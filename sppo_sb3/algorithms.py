@@ -3,7 +3,8 @@
 Each :class:`Algorithm` names its class by module and attribute (it is imported only when asked for, so that
 reading the list imports no algorithm) and carries what the zoo (:mod:`sppo_sb3.zoo`), the benchmark and the plots
 (:mod:`sppo_sb3.experiments`) need to know about it. rl-zoo3's own algorithms that the paper compares against
-(Fig. 7: DDPG, PPO; and SAC, TD3) are listed for display only, in :data:`ZOO_BASELINES`.
+(Fig. 7: DDPG, PPO; and SAC, TD3) are listed for display only, in :data:`ZOO_BASELINES`. The package also has
+algorithms the paper does not compare (``paper=False``: SACLag), which the benchmark runs only when asked to.
 """
 
 from __future__ import annotations
@@ -15,8 +16,8 @@ from typing import TYPE_CHECKING, Literal
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
 
-#: the Optuna search space an algorithm uses: SPPO's own, or the one rl-zoo3 has for PPO or for TRPO
-SamplerName = Literal["sppo", "ppo", "trpo"]
+#: the Optuna search space an algorithm uses: SPPO's own, or the one rl-zoo3 has for PPO, TRPO or SAC
+SamplerName = Literal["sppo", "ppo", "trpo", "sac"]
 
 
 @dataclass(frozen=True)
@@ -29,6 +30,7 @@ class Algorithm:
     :param display_name: name in the figures and tables.
     :param color: matplotlib colour of its curves and bars.
     :param sampler: its Optuna search space for ``sppo-train -optimize`` (``None``: none registered by the package).
+    :param paper: one of the paper's compared algorithms (Tables I-II), in the benchmark's default grid.
     """
 
     name: str
@@ -37,6 +39,7 @@ class Algorithm:
     display_name: str
     color: str
     sampler: SamplerName | None = None
+    paper: bool = True
 
     def load_class(self) -> type[BaseAlgorithm]:
         """Import and return the algorithm's class.
@@ -57,6 +60,7 @@ ALGORITHMS: dict[str, Algorithm] = {
         Algorithm("cpo", "sppo_sb3.cpo", "CPO", "CPO", "tab:orange", sampler="trpo"),
         Algorithm("sailr", "sppo_sb3.sailr", "SAILR", "SAILR", "tab:blue", sampler="ppo"),
         Algorithm("csc", "sppo_sb3.csc", "CSC", "CSC", "tab:purple", sampler="ppo"),
+        Algorithm("saclag", "sppo_sb3.saclag", "SACLag", "SACLag", "tab:pink", sampler="sac", paper=False),
     )
 }
 #: rl-zoo3's algorithms that the comparisons may include (shown in figures and tables, trained by rl-zoo3 itself)
@@ -69,8 +73,10 @@ ZOO_BASELINES: dict[str, Algorithm] = {
         Algorithm("td3", None, "TD3", "TD3", "tab:cyan"),
     )
 }
+#: the paper's compared algorithms, in the order the benchmark runs them (its default grid)
+PAPER_ALGORITHMS: tuple[str, ...] = tuple(name for name, algo in ALGORITHMS.items() if algo.paper)
 #: display order of figures and tables: as the paper's Tables I-II, the safe-RL baselines first and SPPO last
-DISPLAY_ORDER: tuple[str, ...] = ("cpo", "pdo", "csc", "sailr", *ZOO_BASELINES, "sppo")
+DISPLAY_ORDER: tuple[str, ...] = ("cpo", "pdo", "csc", "sailr", "saclag", *ZOO_BASELINES, "sppo")
 
 
-__all__ = ["ALGORITHMS", "DISPLAY_ORDER", "ZOO_BASELINES", "Algorithm"]
+__all__ = ["ALGORITHMS", "DISPLAY_ORDER", "PAPER_ALGORITHMS", "ZOO_BASELINES", "Algorithm"]

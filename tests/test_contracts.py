@@ -1,6 +1,6 @@
 """SB3's contracts, kept by every algorithm of the package: the one parametrised place, in sb3-contrib's manner.
 
-Every test runs over :data:`MODEL_LIST` (the five algorithms, and SPPO and SAILR behind a shield) on a small
+Every test runs over :data:`MODEL_LIST` (the six algorithms, and SPPO and SAILR behind a shield) on a small
 identity task with a cost, :class:`IdentityCostEnv`, with tiny networks and budgets. What is tested is what
 Stable-Baselines3's and sb3-contrib's own suites test for their algorithms (``tests/test_save_load.py``,
 ``tests/test_spaces.py``, ``tests/test_callbacks.py``, ``tests/test_vec_normalize.py``): save/load, policy
@@ -27,16 +27,16 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
-from tiny_hyperparams import QUICK_CSC, TINY_ON_POLICY, TINY_SPPO
+from tiny_hyperparams import QUICK_CSC, TINY_ON_POLICY, TINY_SACLAG, TINY_SPPO
 
-from sppo_sb3 import CPO, CSC, PDO, SAILR, SPPO
+from sppo_sb3 import CPO, CSC, PDO, SAILR, SPPO, SACLag
 from sppo_sb3.common.monitor import CostEvalCallback
 from sppo_sb3.shield import ShieldingRule, ShieldWrapper
 
 pytestmark = pytest.mark.filterwarnings("ignore:SAILR got shield=None")  # plain SAILR is unshielded on purpose here
 
 EPISODE_STEPS = 16
-STEPS = 64  # two rollouts of the on-policy algorithms; SPPO's warm-up, then planning and updates
+STEPS = 64  # two rollouts of the on-policy algorithms; SPPO's and SACLag's warm-up, then updates
 
 
 class IdentityCostEnv(gym.Env):
@@ -138,6 +138,7 @@ SHORT_SPPO = {
     "planner_kwargs": {**TINY_SPPO["planner_kwargs"], "num_samples": 12},
 }
 SHORT_CSC = {**QUICK_CSC, "n_steps": 32, "n_cost_baseline_samples": 2}
+SHORT_SACLAG = {**TINY_SACLAG, "batch_size": 8}
 
 
 @dataclass(frozen=True)
@@ -173,6 +174,7 @@ MODEL_LIST = [
     Algo("CPO", CPO, {**ON_POLICY, "n_critic_updates": 1}),
     Algo("SAILR", SAILR, {**ON_POLICY, "n_epochs": 1}),
     Algo("CSC", CSC, SHORT_CSC),
+    Algo("SACLag", SACLag, SHORT_SACLAG),
     Algo("SPPO-shield", SPPO, SHORT_SPPO, shielded=True),
     Algo("SAILR-shield", SAILR, {**ON_POLICY, "n_epochs": 1}, shielded=True),
 ]
@@ -488,6 +490,11 @@ UNSUPPORTED: dict[str, dict[str, str]] = {
     "CSC": {
         **dict.fromkeys(DISCRETE, "supports Box action spaces only"),
         **dict.fromkeys(NON_BOX_OBS, "supports Box observations only"),
+        "Dict actions": SB3_ACTIONS_MESSAGE,
+        "Dict observations": DICT_MESSAGE,
+    },
+    "SACLag": {  # SB3's SAC: Box actions only
+        **dict.fromkeys(DISCRETE, SB3_ACTIONS_MESSAGE),
         "Dict actions": SB3_ACTIONS_MESSAGE,
         "Dict observations": DICT_MESSAGE,
     },

@@ -164,6 +164,18 @@ def test_steps_and_config_resolution(tiny_hyperparams: Path) -> None:
     assert config is not None and "HalfCheetah-v5:" in config and "HalfCheetah-v4" in config
 
 
+def test_default_grid_holds_the_papers_five_algorithms() -> None:
+    """An algorithm the paper does not compare (SACLag) is in the one list, runs with ``--algos``, but is not in the
+    default grid nor in the paper-scale plan."""
+    from sppo_sb3.algorithms import ALGORITHMS
+    from sppo_sb3.experiments import plan
+
+    assert grid.OUR_ALGOS == plan.PAPER_ALGOS == ("sppo", "pdo", "cpo", "sailr", "csc")
+    assert not ALGORITHMS["saclag"].paper and "saclag" not in grid.OUR_ALGOS
+    config = configs.resolve_config("saclag", TASK, Path(__file__).resolve().parents[1] / "hyperparams")
+    assert config is not None and f"{TASK}:" in config  # hyperparams/saclag.yml: a grid may name it
+
+
 def test_scripts_are_thin_command_lines_over_the_module(tmp_path: Path) -> None:
     """``python scripts/benchmark.py`` keeps its flags, presets and output; its default config folder is the repo's."""
     out = tmp_path / "quick"

@@ -20,7 +20,7 @@ FLOORS: tuple[tuple[str, ...], ...] = (
     ("sppo_sb3.common", "sppo_sb3.algorithms"),  # conventions, keys, the shared on-policy machinery, the list of algorithms
     ("sppo_sb3.envs",),  # the tasks' physics
     ("sppo_sb3.shield",),  # rules built on the tasks, their registry, the wrapper
-    ("sppo_sb3.sppo", "sppo_sb3.pdo", "sppo_sb3.cpo", "sppo_sb3.sailr", "sppo_sb3.csc"),  # the algorithms
+    ("sppo_sb3.sppo", "sppo_sb3.pdo", "sppo_sb3.cpo", "sppo_sb3.sailr", "sppo_sb3.csc", "sppo_sb3.saclag"),  # the algorithms
     (  # what uses the algorithms: deployment evaluation, the zoo, the CLIs, the benchmark, the package's front door
         "sppo_sb3",
         "sppo_sb3.evaluation",

@@ -34,7 +34,7 @@ ENV = "SafePointCircle-v0"
 SHORT_EPISODES = ["--env-kwargs", "max_episode_steps:50"]
 
 # tiny networks and budgets per algorithm, as rl-zoo3 --hyperparams overrides
-TINY: dict[str, list[str]] = {name: TINY_ZOO[name] for name in ("sppo", "pdo", "sailr", "cpo", "csc")}
+TINY: dict[str, list[str]] = {name: TINY_ZOO[name] for name in ("sppo", "pdo", "sailr", "cpo", "csc", "saclag")}
 ALGOS = sorted(TINY)
 
 
@@ -75,6 +75,8 @@ def test_one_list_of_algorithms_drives_the_zoo(monkeypatch: pytest.MonkeyPatch) 
     assert opt.HYPERPARAMS_SAMPLER["sppo"] is zoo.sample_sppo_params
     assert opt.HYPERPARAMS_SAMPLER["cpo"] is opt.sample_trpo_params
     assert all(opt.HYPERPARAMS_SAMPLER[n] is opt.sample_ppo_params for n in ("pdo", "sailr", "csc"))
+    assert opt.HYPERPARAMS_SAMPLER["saclag"] is opt.sample_sac_params
+    assert opt.HYPERPARAMS_CONVERTER["saclag"] is opt.convert_offpolicy_params
     # an algorithm added to the list is registered from it; one that does not import is skipped and reported
     broken = Algorithm("broken", "sppo_sb3.no_such_module", "Broken", "Broken", "k", sampler="ppo")
     monkeypatch.setitem(ALGORITHMS, "broken", broken)
@@ -203,6 +205,20 @@ def test_sppo_sampler_builds_models() -> None:
         SPPO("TOLDPolicy", "Pendulum-v1", shield=None, **params)
     trial = study.trials[0]
     assert zoo.convert_sppo_params(trial.params) == zoo.sample_sppo_params(optuna.trial.FixedTrial(trial.params), 1, 1, {})
+
+
+def test_saclag_sampler_builds_models() -> None:
+    """rl-zoo3's SAC search space (registered for SACLag) gives SACLag arguments it accepts."""
+    from rl_zoo3 import hyperparams_opt as opt
+
+    from sppo_sb3.saclag import SACLag
+
+    zoo.register_algos()
+    study = optuna.create_study(sampler=optuna.samplers.RandomSampler(seed=0))
+    for _ in range(2):
+        params = opt.HYPERPARAMS_SAMPLER["saclag"](study.ask(), 1, 1, {"using_her_replay_buffer": False})
+        model = SACLag("MlpPolicy", ENV, buffer_size=1_000, **params)
+        assert model.batch_size == params["batch_size"] and model.gradient_steps == params["gradient_steps"]
 
 
 def test_optimize_with_sqlite_storage(tmp_path: Path) -> None:

@@ -56,6 +56,15 @@ TINY_CSC: dict[str, Any] = {
 QUICK_CSC: dict[str, Any] = {**TINY_CSC, "n_epochs": 1, "cost_batch_size": 16, "cost_gradient_steps": 2, "n_action_samples": 4}
 """CSC with one epoch and few samples, for the tests that run every algorithm."""
 
+# ---------------------------------------------------------------------------- off-policy baseline: SACLag
+TINY_SACLAG: dict[str, Any] = dict(
+    learning_starts=24,
+    batch_size=16,
+    buffer_size=2_000,
+    policy_kwargs=dict(net_arch=[16], cost_net_arch=[16]),
+)
+"""SACLag's constructor settings: 16-unit networks, one gradient step per env step after a 24-step warm-up."""
+
 
 # ---------------------------------------------------------------------------- rl-zoo3 --hyperparams overrides
 def _literal(settings: dict[str, Any]) -> str:
@@ -86,6 +95,7 @@ TINY_ZOO: dict[str, list[str]] = {
         "n_cost_baseline_samples:2",
         _ZOO_COST_NETS,
     ],
+    "saclag": ["learning_starts:60", "batch_size:16", "buffer_size:1000", _ZOO_COST_NETS],
     "ddpg": ["learning_starts:60", "batch_size:16", "policy_kwargs:dict(net_arch=[8])"],
     "ppo": [*_ZOO_ON_POLICY, "n_epochs:1", "policy_kwargs:dict(net_arch=[8])"],
 }

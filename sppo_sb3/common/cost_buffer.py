@@ -1,16 +1,41 @@
-"""The rollout buffer of the cost-aware on-policy algorithms: SB3's ``RolloutBuffer`` plus costs and a learning mask."""
+"""The buffers of the cost-aware algorithms: SB3's ``RolloutBuffer`` plus costs and a learning mask (the on-policy
+baselines), and SB3's ``ReplayBuffer`` plus costs (SACLag)."""
 
 from __future__ import annotations
 
 from collections.abc import Generator
-from typing import NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.buffers import RolloutBuffer
+from gymnasium import spaces
+from stable_baselines3.common.buffers import BaseBuffer, ReplayBuffer, RolloutBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
+from sppo_sb3.common.costs import costs_from_infos
 from sppo_sb3.common.gae import compute_gae
+
+BufferT = TypeVar("BufferT", bound=BaseBuffer)
+
+
+def cost_buffer_class(given: type[BaseBuffer] | None, required: type[BufferT], algorithm: str, argument: str) -> type[BufferT]:
+    """The buffer class a cost-aware algorithm uses: ``required`` where none is given, else the given one, which must
+    subclass it (it stores the costs).
+
+    :param given: the class the user passed (``rollout_buffer_class`` or ``replay_buffer_class``), or ``None``.
+    :param required: the cost-aware buffer the algorithm needs.
+    :param algorithm: the algorithm's name, for the message.
+    :param argument: the argument's name, for the message.
+    :raises TypeError: where ``given`` does not subclass ``required``.
+    """
+    if given is None:
+        return required
+    if not issubclass(given, required):
+        raise TypeError(
+            f"{algorithm} needs a {required.__name__} (it stores the costs); got {argument}={given.__name__}. "
+            f"Leave {argument}=None or subclass {required.__name__}."
+        )
+    return given
 
 
 class CostRolloutBufferSamples(NamedTuple):
@@ -139,3 +164,88 @@ class CostRolloutBuffer(RolloutBuffer):
             self.cost_returns[batch_inds].flatten(),
         )
         return CostRolloutBufferSamples(*tuple(map(self.to_torch, data)))
+
+
+class CostReplayBufferSamples(NamedTuple):
+    """A minibatch of :class:`CostReplayBuffer`: SB3's ``ReplayBufferSamples`` fields (no n-step discounts) and costs.
+
+    ``dones`` are 1 where the episode terminated (not where a time limit truncated it), as SB3's; ``rewards`` are
+    normalised under ``VecNormalize``, ``costs`` never are.
+    """
+
+    observations: th.Tensor
+    actions: th.Tensor
+    next_observations: th.Tensor
+    dones: th.Tensor
+    rewards: th.Tensor
+    costs: th.Tensor
+
+
+class CostReplayBuffer(ReplayBuffer):
+    """SB3's ``ReplayBuffer`` plus each transition's cost ``c(s, a) = info["cost"]``, read from the step's infos in
+    :meth:`add` (``MissingCostError`` where an env does not report it). Arguments are SB3's ``ReplayBuffer``'s.
+
+    :param buffer_size: the most transitions kept (over all envs).
+    :param observation_space: observation space (not a Dict).
+    :param action_space: action space.
+    :param device: PyTorch device of the sampled tensors.
+    :param n_envs: number of parallel envs.
+    :param optimize_memory_usage: SB3's memory-efficient storage of the next observations.
+    :param handle_timeout_termination: bootstrap the transitions cut by a time limit (SB3's, default).
+    """
+
+    costs: np.ndarray
+
+    def __init__(
+        self,
+        buffer_size: int,
+        observation_space: spaces.Space,
+        action_space: spaces.Space,
+        device: th.device | str = "auto",
+        n_envs: int = 1,
+        optimize_memory_usage: bool = False,
+        handle_timeout_termination: bool = True,
+    ) -> None:
+        if isinstance(observation_space, spaces.Dict):
+            raise TypeError("CostReplayBuffer stores flat observations; Dict observation spaces are not supported.")
+        super().__init__(
+            buffer_size, observation_space, action_space, device, n_envs, optimize_memory_usage, handle_timeout_termination
+        )
+        self.costs = np.zeros((self.buffer_size, self.n_envs), dtype=np.float32)
+
+    def add(
+        self,
+        obs: np.ndarray,
+        next_obs: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        done: np.ndarray,
+        infos: list[dict[str, Any]],
+    ) -> None:
+        self.costs[self.pos] = costs_from_infos(infos)
+        super().add(obs, next_obs, action, reward, done, infos)
+
+    def sample(self, batch_size: int, env: VecNormalize | None = None) -> CostReplayBufferSamples:  # type: ignore[override]
+        """``batch_size`` transitions drawn uniformly, with their costs (SB3's ``sample``)."""
+        samples = super().sample(batch_size, env)
+        assert isinstance(samples, CostReplayBufferSamples)
+        return samples
+
+    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> CostReplayBufferSamples:  # type: ignore[override]
+        """SB3's transitions at ``batch_inds`` (a random env each) and their costs: drawn here, not by SB3's
+        ``_get_samples``, so that the costs come from the same envs as the rest."""
+        env_indices = np.random.randint(0, high=self.n_envs, size=(len(batch_inds),))
+        if self.optimize_memory_usage:
+            next_obs = self.observations[(batch_inds + 1) % self.buffer_size, env_indices, :]
+        else:
+            next_obs = self.next_observations[batch_inds, env_indices, :]
+        terminated = self.dones[batch_inds, env_indices] * (1 - self.timeouts[batch_inds, env_indices])
+        data = (
+            self._normalize_obs(self.observations[batch_inds, env_indices, :], env),
+            self.actions[batch_inds, env_indices, :],
+            self._normalize_obs(next_obs, env),
+            terminated.reshape(-1, 1),
+            self._normalize_reward(self.rewards[batch_inds, env_indices].reshape(-1, 1), env),
+            self.costs[batch_inds, env_indices].reshape(-1, 1),
+        )
+        return CostReplayBufferSamples(*tuple(map(self.to_torch, data)))

@@ -12,7 +12,8 @@ class EpisodeCostTracker:
 
     PDO's and CSC's dual ascent and CPO's constraint value ``c = J_C - d`` read :meth:`estimate`: the mean cost of the
     episodes that ended during the latest rollout; if none ended, the mean over the last ``window`` finished
-    episodes; if none ever ended, the mean cost so far of the running episodes (a lower bound).
+    episodes; if none ever ended, the mean cost so far of the running episodes (a lower bound). An off-policy
+    algorithm, which has no rollouts to speak of, reads the windowed mean alone (:meth:`recent_estimate`).
 
     :param n_envs: number of parallel envs.
     :param window: number of finished episodes kept for the fallback estimate.
@@ -61,6 +62,11 @@ class EpisodeCostTracker:
         """The measured mean episode cost ``J_C`` (see the class docstring for the fallbacks)."""
         if self.rollout_costs:
             return float(np.mean(self.rollout_costs))
+        return self.recent_estimate()
+
+    def recent_estimate(self) -> float:
+        """``J_C`` over the last ``window`` finished episodes, whatever the rollouts (SACLag's dual step, which runs
+        every few env steps); if none ever ended, the mean cost so far of the running episodes (a lower bound)."""
         if self.recent_costs:
             return float(np.mean(self.recent_costs))
         return float(np.mean(self.running_cost))

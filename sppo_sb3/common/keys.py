@@ -37,8 +37,10 @@ COST_INFO_KEYWORDS: tuple[str, str] = (EPISODE_COST_INFO_KEY, EPISODE_VIOLATIONS
 SAFETY_LOG_PREFIX = "safety/"
 #: the measured episode cost ``J_C`` that the constrained algorithms compare with their cost limit
 EPISODE_COST_ESTIMATE_LOG_KEY = "safety/ep_cost_estimate"
-#: the Lagrange multiplier of the primal-dual algorithms (PDO, CSC)
+#: the Lagrange multiplier of the primal-dual algorithms (PDO, CSC, SACLag)
 LAGRANGE_MULTIPLIER_LOG_KEY = "train/lagrange_multiplier"
+#: prefix of the training statistics, as SB3's algorithms log them (SACLag's ``train/actor_loss``, ``train/cost_q``, ...)
+TRAIN_LOG_PREFIX = "train/"
 #: gradient updates so far, as SB3's algorithms log it (left out of TensorBoard)
 N_UPDATES_LOG_KEY = "train/n_updates"
 #: the evaluation callback's cost figures, beside SB3's ``eval/mean_reward``

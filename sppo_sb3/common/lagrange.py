@@ -1,19 +1,20 @@
-"""The Lagrange multiplier of the primal-dual baselines (PDO and CSC), defined once.
+"""The Lagrange multiplier of the primal-dual baselines (PDO, CSC and SACLag), defined once.
 
-Both solve the constrained problem of the paper's Section II-B (the CMDP ``max_π J_R(π)  s.t.  J_C(π) <= d``) on its
+They solve the constrained problem of the paper's Section II-B (the CMDP ``max_π J_R(π)  s.t.  J_C(π) <= d``) on its
 Lagrangian ``L(π, λ) = J_R(π) - λ·(J_C(π) - d)``, ``λ >= 0``: a primal (policy) step on the advantage
 ``(A_R - λ·A_C) / (1 + λ)`` and a projected dual (gradient) step on ``λ`` driven by the measured episode cost ``J_C``
 of :class:`~sppo_sb3.common.cost_tracker.EpisodeCostTracker`. The paper's baselines PDO [25] and CSC [28]
-(Section V-A.3) are this scheme with two different cost advantages ``A_C``.
+(Section V-A.3) are this scheme with two different cost advantages ``A_C``; SACLag's primal step is SAC's actor loss
+with the penalty ``λ·Q_C``, also scaled by ``1 / (1 + λ)``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from sppo_sb3.common.cost_tracker import EpisodeCostTracker
 from sppo_sb3.common.keys import LAGRANGE_MULTIPLIER_LOG_KEY
 
 #: the cost limit ``d`` shared by the constrained baselines PDO, CPO and CSC: on the paper's tasks an episode ends at
@@ -47,8 +48,10 @@ def lagrangian_advantage(advantages: np.ndarray, cost_advantages: np.ndarray, la
 class LagrangianMixin:
     """The multiplier ``λ`` of a primal-dual algorithm: its arguments, its dual step, its logs.
 
-    Put it before :class:`~sppo_sb3.common.on_policy.SafeOnPolicyMixin` in the bases
-    (``class PDO(LagrangianMixin, SafeOnPolicyMixin, PPO)``), whose ``cost_tracker`` gives the measured episode cost,
+    Put it before :class:`~sppo_sb3.common.safety_tracking.SafetyTrackingMixin` (or
+    :class:`~sppo_sb3.common.on_policy.SafeOnPolicyMixin`, which is one) in the bases
+    (``class PDO(LagrangianMixin, SafeOnPolicyMixin, PPO)``), whose ``measured_episode_cost`` gives the measured
+    episode cost ``J_C`` (on-policy: the tracker's estimate over the latest rollout; SACLag: over its recent window),
     and call :meth:`_init_lagrange` first thing in ``__init__``. The state is three plain attributes, saved with the
     model: ``cost_limit`` (``d``), ``lagrange_lr`` (``η_λ``) and ``lagrange_multiplier`` (``λ``).
     """
@@ -56,7 +59,7 @@ class LagrangianMixin:
     cost_limit: float
     lagrange_lr: float
     lagrange_multiplier: float
-    cost_tracker: EpisodeCostTracker
+    measured_episode_cost: Callable[[], float]
     logger: Any
 
     def _init_lagrange(self, cost_limit: float, lagrange_init: float, lagrange_lr: float) -> None:
@@ -75,11 +78,11 @@ class LagrangianMixin:
         self.lagrange_multiplier = float(lagrange_init)
 
     def update_lagrange_multiplier(self) -> float:
-        """One dual step (:func:`lagrange_update`) on the mean episode cost measured over the latest rollout.
+        """One dual step (:func:`lagrange_update`) on the measured mean episode cost ``J_C``.
 
         :return: the new ``λ``.
         """
-        episode_cost = self.cost_tracker.estimate()
+        episode_cost = self.measured_episode_cost()
         self.lagrange_multiplier = lagrange_update(self.lagrange_multiplier, episode_cost, self.cost_limit, self.lagrange_lr)
         self.logger.record(LAGRANGE_MULTIPLIER_LOG_KEY, self.lagrange_multiplier)
         return self.lagrange_multiplier

@@ -15,7 +15,8 @@ and the update PDO and SAILR share, PPO on the penalised advantage followed by t
 
 Its parts live in their own modules: :func:`~sppo_sb3.common.gae.compute_gae`,
 :class:`~sppo_sb3.common.cost_buffer.CostRolloutBuffer`, :class:`~sppo_sb3.common.cost_policy.CostActorCriticPolicy`,
-:class:`~sppo_sb3.common.cost_tracker.EpisodeCostTracker` and the Lagrange multiplier of
+:class:`~sppo_sb3.common.cost_tracker.EpisodeCostTracker` (kept with the safety metrics by
+:class:`~sppo_sb3.common.safety_tracking.SafetyTrackingMixin`) and the Lagrange multiplier of
 :mod:`sppo_sb3.common.lagrange`.
 """
 
@@ -29,16 +30,13 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.policies import BasePolicy
-from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.utils import obs_as_tensor
-from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+from stable_baselines3.common.vec_env import VecEnv
 
-from sppo_sb3.common.cost_buffer import CostRolloutBuffer
+from sppo_sb3.common.cost_buffer import CostRolloutBuffer, cost_buffer_class
 from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
-from sppo_sb3.common.cost_tracker import EpisodeCostTracker
-from sppo_sb3.common.keys import EPISODE_COST_ESTIMATE_LOG_KEY
 from sppo_sb3.common.lagrange import lagrangian_advantage
-from sppo_sb3.common.safety import SafetyMetrics
+from sppo_sb3.common.safety_tracking import SafetyTrackingMixin
 
 __all__ = ["ActionChoice", "SafeOnPolicyMixin"]
 
@@ -59,17 +57,18 @@ class ActionChoice(NamedTuple):
     intervened: np.ndarray | None = None
 
 
-class SafeOnPolicyMixin:
+class SafeOnPolicyMixin(SafetyTrackingMixin):
     """Cost-aware rollouts for SB3 on-policy algorithms. Put it before the SB3 algorithm in the bases:
     ``class CPO(SafeOnPolicyMixin, TRPO)``, ``class PDO(LagrangianMixin, SafeOnPolicyMixin, PPO)``.
 
     The subclass calls :meth:`_init_safety` in its ``__init__`` (after the SB3 base ``__init__`` with
     ``_init_setup_model=False`` and before ``_setup_model``). It gets:
 
-    - ``self.safety_metrics`` (:class:`~sppo_sb3.common.safety.SafetyMetrics`) fed every env step with the env's
-      original rewards (also under ``VecNormalize``), logged under ``safety/`` whenever the logs are dumped, saved with
-      the model;
-    - ``self.cost_tracker`` (:class:`EpisodeCostTracker`): the measured episode cost ``J_C``;
+    - from :class:`~sppo_sb3.common.safety_tracking.SafetyTrackingMixin`: ``self.safety_metrics``
+      (:class:`~sppo_sb3.common.safety.SafetyMetrics`) fed every env step with the env's original rewards (also under
+      ``VecNormalize``), logged under ``safety/`` whenever the logs are dumped, saved with the model; and
+      ``self.cost_tracker`` (:class:`~sppo_sb3.common.cost_tracker.EpisodeCostTracker`): the measured episode cost
+      ``J_C``;
     - a :class:`CostRolloutBuffer` filled with costs, cost values and cost GAE;
     - the hooks :meth:`_choose_actions`, :meth:`_learning_transition` and :meth:`_store_transition`;
     - :meth:`_train_on_penalised_advantage`, for a ``train`` that follows ``(A_R - κ·A_C) / (1 + κ)``.
@@ -80,8 +79,6 @@ class SafeOnPolicyMixin:
     uses_cost_critic: bool = True
 
     # provided by OnPolicyAlgorithm
-    env: VecEnv | None
-    n_envs: int
     policy: Any
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]]
     rollout_buffer: RolloutBuffer
@@ -90,29 +87,15 @@ class SafeOnPolicyMixin:
     n_epochs: int
     batch_size: int
     num_timesteps: int
-    logger: Any
     use_sde: bool
     sde_sample_freq: int
     action_space: spaces.Space
     device: th.device
-    _last_obs: Any
     _last_episode_starts: Any
-    _vec_normalize_env: VecNormalize | None
-
-    def _init_safety(self) -> None:
-        """Create the safety metrics and the episode-cost tracker (kept as they are when a saved model is loaded)."""
-        n_envs = self.n_envs if getattr(self, "env", None) is not None else 1
-        self.safety_metrics = SafetyMetrics(n_envs)
-        self.cost_tracker = EpisodeCostTracker(n_envs)
 
     def _setup_model(self) -> None:
-        if self.rollout_buffer_class is None:
-            self.rollout_buffer_class = CostRolloutBuffer
-        if not issubclass(self.rollout_buffer_class, CostRolloutBuffer):
-            raise TypeError(
-                f"{type(self).__name__} needs a CostRolloutBuffer (it stores the costs); got rollout_buffer_class="
-                f"{self.rollout_buffer_class.__name__}. Leave rollout_buffer_class=None or subclass CostRolloutBuffer."
-            )
+        given, name = self.rollout_buffer_class, type(self).__name__
+        self.rollout_buffer_class = cost_buffer_class(given, CostRolloutBuffer, name, "rollout_buffer_class")
         super()._setup_model()  # type: ignore[misc]
         if self.uses_cost_critic and not isinstance(self.policy, CostActorCriticPolicy):
             raise TypeError(
@@ -127,28 +110,6 @@ class SafeOnPolicyMixin:
         """
         mlp_policy = self.policy_aliases.get("MlpPolicy")
         super()._maybe_recommend_cpu(mlp_class_name if mlp_policy is None else mlp_policy.__name__)  # type: ignore[misc]
-
-    def _setup_learn(
-        self,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        reset_num_timesteps: bool = True,
-        tb_log_name: str = "run",
-        progress_bar: bool = False,
-    ) -> tuple[int, BaseCallback]:
-        env_reset = reset_num_timesteps or self._last_obs is None
-        out = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)  # type: ignore[misc]
-        assert self.env is not None
-        self.safety_metrics.resize(self.env.num_envs)
-        self.cost_tracker.resize(self.env.num_envs)
-        if env_reset:
-            self._on_env_reset()
-        return out
-
-    def _on_env_reset(self) -> None:
-        """Called when ``learn`` resets the envs: running episodes start over."""
-        self.safety_metrics.restart_episodes()
-        self.cost_tracker.reset_running()
 
     # --- hooks ----------------------------------------------------------------------------------------------------
 
@@ -209,21 +170,6 @@ class SafeOnPolicyMixin:
         if self.policy.squash_output:
             return self.policy.unscale_action(actions)
         return np.clip(actions, self.action_space.low, self.action_space.high)
-
-    def _record_safety(
-        self, rewards: np.ndarray, dones: np.ndarray, infos: list[dict[str, Any]], intervened: np.ndarray | None
-    ) -> np.ndarray:
-        """Feed one env step to the safety metrics, with the env's original rewards, and to the cost tracker.
-
-        :param intervened: interventions of :meth:`_choose_actions`, besides the shield's ``info["shield_intervened"]``.
-        :return: the step's costs ``info["cost"]``.
-        :raises MissingCostError: when an env does not report ``info["cost"]``.
-        """
-        if self._vec_normalize_env is not None:
-            rewards = self._vec_normalize_env.get_original_reward()
-        costs = self.safety_metrics.update_from_infos(rewards, dones, infos, intervened)
-        self.cost_tracker.update(costs, dones)
-        return costs
 
     def _bootstrap_timeouts(
         self, rewards: np.ndarray, costs: np.ndarray, dones: np.ndarray, absorbed: np.ndarray, infos: list[dict[str, Any]]
@@ -333,6 +279,5 @@ class SafeOnPolicyMixin:
 
     def dump_logs(self, iteration: int = 0) -> None:
         """Write the ``safety/`` figures and the measured episode cost, then SB3's logs."""
-        self.safety_metrics.record(self.logger)
-        self.logger.record(EPISODE_COST_ESTIMATE_LOG_KEY, self.cost_tracker.estimate())
+        self._record_safety_logs()
         super().dump_logs(iteration)  # type: ignore[misc]

@@ -1,11 +1,11 @@
 """rl-zoo3 integration: the package's algorithms, samplers and safety outputs, registered with the zoo.
 
 :func:`register_algos` (:mod:`~sppo_sb3.zoo.registration`) adds the package's algorithms
-(:data:`sppo_sb3.algorithms.ALGORITHMS`: ``sppo``, ``pdo``, ``cpo``, ``sailr``, ``csc``) to rl-zoo3's ``ALGOS`` (an
-algorithm whose module does not import is skipped with a warning and listed in :data:`UNAVAILABLE`) and their Optuna
-samplers (:mod:`~sppo_sb3.zoo.samplers`) to ``HYPERPARAMS_SAMPLER``/``HYPERPARAMS_CONVERTER``. :func:`install`
-(:mod:`~sppo_sb3.zoo.patches`, where every monkeypatch of rl-zoo3 lives) does that and makes rl-zoo3's train command
-cost-aware (used by ``sppo-train``):
+(:data:`sppo_sb3.algorithms.ALGORITHMS`: ``sppo``, ``pdo``, ``cpo``, ``sailr``, ``csc``, ``saclag``) to rl-zoo3's
+``ALGOS`` (an algorithm whose module does not import is skipped with a warning and listed in :data:`UNAVAILABLE`) and
+their Optuna samplers (:mod:`~sppo_sb3.zoo.samplers`) to ``HYPERPARAMS_SAMPLER``/``HYPERPARAMS_CONVERTER``.
+:func:`install` (:mod:`~sppo_sb3.zoo.patches`, where every monkeypatch of rl-zoo3 lives) does that and makes rl-zoo3's
+train command cost-aware (used by ``sppo-train``):
 
 - every env that rl-zoo3 creates gets :class:`~sppo_sb3.common.monitor.EpisodeCostInfo` inside its ``Monitor``,
   whose ``monitor.csv`` gains the columns ``episode_cost`` and ``episode_violations``;

@@ -42,7 +42,7 @@ def register_samplers(classes: dict[str, type[BaseAlgorithm]] | None = None) -> 
     """Register each algorithm's Optuna search space (:attr:`~sppo_sb3.algorithms.Algorithm.sampler`).
 
     SPPO has its own (:func:`~sppo_sb3.zoo.samplers.sample_sppo_params`); PDO, SAILR and CSC use rl-zoo3's PPO
-    sampler, CPO its TRPO sampler. Entries already present (a user's own sampler) are kept.
+    sampler, CPO its TRPO sampler, SACLag its SAC sampler. Entries already present (a user's own sampler) are kept.
 
     :param classes: the available algorithms (default: all that import).
     """

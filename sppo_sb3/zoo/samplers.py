@@ -82,8 +82,8 @@ def sample_sppo_params(trial: optuna.Trial, n_actions: int, n_envs: int, additio
 def search_spaces() -> dict[str, SearchSpace]:
     """The search spaces an algorithm may name (:attr:`~sppo_sb3.algorithms.Algorithm.sampler`), by that name.
 
-    SPPO has its own; ``"ppo"`` and ``"trpo"`` are rl-zoo3's samplers of those algorithms (read from rl-zoo3's
-    ``hyperparams_opt`` at each call).
+    SPPO has its own; ``"ppo"``, ``"trpo"`` and ``"sac"`` are rl-zoo3's samplers of those algorithms (read from
+    rl-zoo3's ``hyperparams_opt`` at each call).
 
     :return: ``{name: (sampler, converter)}``.
     """
@@ -92,4 +92,5 @@ def search_spaces() -> dict[str, SearchSpace]:
         "sppo": (sample_sppo_params, convert_sppo_params),
         "ppo": (opt.sample_ppo_params, opt.convert_onpolicy_params),
         "trpo": (opt.sample_trpo_params, opt.convert_onpolicy_params),
+        "sac": (opt.sample_sac_params, opt.convert_offpolicy_params),
     }
