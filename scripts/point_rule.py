@@ -27,8 +27,8 @@ RULES = {
     "wall backup, band 0.5": lambda: PointCircleShieldingRule(alpha=0.5),
     "wall backup, band 0.25": lambda: PointCircleShieldingRule(alpha=0.25),
     "wall backup, band 0.1": lambda: PointCircleShieldingRule(alpha=0.1),
-    "wall backup, band 0.05": lambda: PointCircleShieldingRule(alpha=0.05),
-    "default: wall backup, no band": PointCircleShieldingRule,
+    "default: wall backup, band 0.05": PointCircleShieldingRule,
+    "wall backup, no band": lambda: PointCircleShieldingRule(alpha=0.0),
 }
 
 

@@ -663,20 +663,22 @@ def test_the_papers_point_rule_is_registered_by_name() -> None:
     rule = resolve_shielding_rule(PAPER_POINT_RULE, venv, required=True)
     assert isinstance(rule, PointCircleShieldingRule) and (rule.alpha, rule.backup) == (0.5, "sailr")
     default = resolve_shielding_rule("auto", venv, required=True)
-    assert (default.alpha, default.backup) == (0.0, "wall")
+    assert (default.alpha, default.backup) == (0.05, "wall")
     # the paper's band: coasting at 1.0 from 1.8 would stop inside it (2.4 > 2.0), the default rule lets it coast
     coasting = (np.array([[1.8, 0.0, 1.0, 0.0]]), np.zeros((1, 2)))
     assert rule.shield(*coasting).intervened[0] and not default.shield(*coasting).intervened[0]
 
 
 def test_scripted_lap_runs_along_the_wall_under_the_default_rule() -> None:
-    """The return ceiling (docs/results.md): the lap at |x| = 2.48 is never overridden by the default rule and scores
-    what it scores unshielded; the paper's rule never lets it past the band's edge, |x| = 2.0, and overrides it."""
-    unshielded = run_scripted_lap(2.48)
-    shielded = run_scripted_lap(2.48, PointCircleShieldingRule())
-    assert not unshielded.violated and unshielded.max_abs_x > 2.48 and unshielded.episode_return > 200.0
-    assert shielded == unshielded
-    paper = run_scripted_lap(2.48, paper_point_rule())
+    """The return ceiling (docs/results.md): the lap at |x| = 2.4 is never overridden by the default rule (band 0.05),
+    scores what it scores unshielded and within 5% of the best unshielded lap (at 2.48); the paper's rule never lets
+    it past the band's edge, |x| = 2.0, and overrides nearly every step."""
+    best_unshielded = run_scripted_lap(2.48)
+    assert not best_unshielded.violated and best_unshielded.max_abs_x > 2.48
+    shielded, unshielded = run_scripted_lap(2.4, PointCircleShieldingRule()), run_scripted_lap(2.4)
+    assert shielded == unshielded and shielded.interventions == 0 and shielded.max_abs_x > 2.4
+    assert shielded.episode_return >= 0.95 * best_unshielded.episode_return
+    paper = run_scripted_lap(2.4, paper_point_rule())
     assert paper.max_abs_x <= 2.0 and paper.interventions > 400 and paper.episode_return < 0.1 * unshielded.episode_return
 
 

@@ -91,7 +91,7 @@ class SafePointCircleEnv(gym.Env[np.ndarray, np.ndarray]):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}  # noqa: RUF012
     observation_space: gym.spaces.Box
 
-    def __init__(self, alpha: float = 0.0, render_mode: str | None = None) -> None:
+    def __init__(self, alpha: float = 0.05, render_mode: str | None = None) -> None:
         self.params = PointParams()
         self.alpha = alpha
         self.render_mode = render_mode

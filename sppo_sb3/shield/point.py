@@ -48,7 +48,8 @@ class PointCircleShieldingRule(ShieldingRule):
     ``Q̄`` agree to the last bit.
 
     :param params: the task constants (must match the env).
-    :param alpha: shaped-cost band width of eq. 18 (paper: 0.5).
+    :param alpha: shaped-cost band width of eq. 18 (paper: 0.5): the margin from the wall that the shield keeps, and
+        that a policy learned under it keeps when deployed without it.
     :param gamma: discount of ``Q̄`` (paper: 0.99).
     :param eta: advantage threshold (paper: 0).
     :param penalty: absorbing reward ``R̃``.
@@ -58,7 +59,7 @@ class PointCircleShieldingRule(ShieldingRule):
     def __init__(
         self,
         params: PointParams | None = None,
-        alpha: float = 0.0,
+        alpha: float = 0.05,
         gamma: float = 0.99,
         eta: float = 0.0,
         penalty: float = -1.0,
