@@ -19,7 +19,7 @@ from tiny_hyperparams import TINY_SPPO
 
 from sppo_sb3 import SPPO
 from sppo_sb3.common.costs import MissingCostError
-from sppo_sb3.shield import PointCircleShieldingRule
+from sppo_sb3.shield import PointCircleShieldingRule, ShieldingRule
 from sppo_sb3.sppo.buffers import ShieldedReplayBuffer
 from sppo_sb3.sppo.optim import init_optimizer_state
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, topo_update
@@ -226,8 +226,25 @@ def test_nan_observations_stop_training_with_a_clear_error():
         tiny_sppo(env, shield=None).learn(10)
 
 
+class StillTorque(ShieldingRule):
+    """A rule for Pendulum's observations and 1-D torque: the backup is no torque, ``Q̄ = 0`` everywhere."""
+
+    gamma = 0.99
+
+    def backup_action(self, obs: np.ndarray) -> np.ndarray:
+        return np.zeros((len(obs), 1))
+
+    def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        return np.zeros(len(obs))
+
+
 def test_a_shield_on_an_env_without_cost_is_a_clear_error():
     with pytest.raises(MissingCostError, match=r"info\['cost'\]"):
+        tiny_sppo("Pendulum-v1", shield=StillTorque(), learning_starts=5).learn(5)
+
+
+def test_the_point_rule_on_another_env_is_a_clear_error():
+    with pytest.raises(ValueError, match=r"observations \[x, y, vx, vy\]"):
         tiny_sppo("Pendulum-v1", shield=PointCircleShieldingRule(), learning_starts=5).learn(5)
 
 

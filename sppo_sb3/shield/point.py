@@ -27,6 +27,16 @@ def braking_distance(speed: float, params: PointParams) -> float:
     return full + rest * params.dt / 2.0
 
 
+def check_point_observations(obs: np.ndarray) -> None:
+    """Reject a batch that is not the Point Robot's ``(B, 4)`` observations, saying which rule expects what."""
+    if obs.ndim != 2 or obs.shape[1] != 4:
+        raise ValueError(
+            f"PointCircleShieldingRule reads the Point Robot's observations [x, y, vx, vy] (4 values), got a batch of "
+            f"shape {obs.shape}. Is it the rule of this env? SafePointCircle-v0 registers it (shield='auto'); for "
+            "another task pass its own rule."
+        )
+
+
 class PointCircleShieldingRule(ShieldingRule):
     """A braking backup; ``Q̄(s, a) = Σ_t γ^(t+1) ĉ(s_(t+1))`` along "take ``a``, then the backup" (eq. 18 shaped cost).
 
@@ -80,6 +90,7 @@ class PointCircleShieldingRule(ShieldingRule):
 
     def backup_action(self, obs: np.ndarray) -> np.ndarray:
         """Braking force ``clip(-m·v/dt, -1, 1)`` (exactly to rest once the speed is small), on the axes it brakes."""
+        check_point_observations(obs)
         brake = np.clip(-self.params.mass * obs[:, 2:4] / self.params.dt, -1.0, 1.0)
         if self.backup == "wall":
             brake[:, 1] *= self._must_brake_y(obs)
@@ -96,6 +107,7 @@ class PointCircleShieldingRule(ShieldingRule):
 
     def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """``Q̄(s, a)`` by rolling "take ``a``, then the backup" through the known dynamics, batched over ``obs``."""
+        check_point_observations(obs)
         state = point_step(obs[:, :4].astype(np.float64), np.clip(actions, -1.0, 1.0), self.params)
         q = np.zeros(len(obs))
         running = np.ones(len(obs), dtype=bool)  # not yet absorbed in the unsafe set
