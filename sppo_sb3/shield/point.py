@@ -91,9 +91,13 @@ class PointCircleShieldingRule(ShieldingRule):
     def backup_action(self, obs: np.ndarray) -> np.ndarray:
         """Braking force ``clip(-m·v/dt, -1, 1)`` (exactly to rest once the speed is small), on the axes it brakes."""
         check_point_observations(obs)
-        brake = np.clip(-self.params.mass * obs[:, 2:4] / self.params.dt, -1.0, 1.0)
+        return self._brake(obs)
+
+    def _brake(self, state: np.ndarray) -> np.ndarray:
+        """The backup on checked ``(B, 4)`` states: the rollouts call it on every step."""
+        brake = np.clip(-self.params.mass * state[:, 2:4] / self.params.dt, -1.0, 1.0)
         if self.backup == "wall":
-            brake[:, 1] *= self._must_brake_y(obs)
+            brake[:, 1] *= self._must_brake_y(state)
         return brake
 
     def _must_brake_y(self, state: np.ndarray) -> np.ndarray:
@@ -114,7 +118,7 @@ class PointCircleShieldingRule(ShieldingRule):
         for t in range(self.horizon):
             q += running * self._step_cost(state, t)
             running &= ~point_is_unsafe(state, self.params)
-            state = point_step(state, self.backup_action(state), self.params)
+            state = point_step(state, self._brake(state), self.params)
         # x has stopped; a settled row's ĉ stays, the rest of its sum is the tail. The others run on, row by row.
         rows = np.flatnonzero(running)
         state = state[rows]
@@ -125,7 +129,7 @@ class PointCircleShieldingRule(ShieldingRule):
             if len(rows) == 0:
                 return q
             q[rows] += self._step_cost(state, t)
-            state = point_step(state, self.backup_action(state), self.params)
+            state = point_step(state, self._brake(state), self.params)
         q[rows] = np.nan  # not settled (no valid state gets here): fail closed
         return q
 
