@@ -17,6 +17,7 @@ import pytest
 from tiny_hyperparams import tiny_pdo_yml
 
 from sppo_sb3.experiments import benchmark, configs, display, grid, layout, plot, stats, tables
+from sppo_sb3.experiments.spec import run_name
 
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 TASK = "SafePointCircle-v0"
@@ -224,3 +225,32 @@ def test_fig7_counts_dm_control_steps_with_the_action_repeat() -> None:
     table = tables.returns_table_markdown(stats.aggregate(pd.DataFrame(rows)))
     assert "| DMC-cartpole-swingup-v0 | PPO | 2 | 20000 |" in table and table.count("| 800.0 |") == 1
     assert "| Hopper-v5 | PPO | 2 | 2500 |" in table and table.count("| 100.0 |") == 1
+
+
+def test_a_variant_is_its_own_row_beside_its_algorithm(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--variant shielded``: the same algorithm under other settings gets its own folders and table row."""
+    (tmp_path / "pdo.yml").write_text(tiny_pdo_yml(TASK, STEPS))
+    specs = grid.build_grid(["pdo"], [TASK], [0], tmp_path / "out", tmp_path, variant="shielded")
+    assert [(s.algo, s.name, s.label) for s in specs] == [("pdo", "pdo-shielded", f"{TASK} / pdo-shielded / seed 0")]
+    assert Path(specs[0].run_dir) == tmp_path / "out" / TASK / "pdo-shielded" / "seed_0"
+    with pytest.raises(ValueError, match="letters, digits and '_'"):
+        grid.build_grid(["pdo"], [TASK], [0], tmp_path / "out", tmp_path, variant="with/shield")
+    argv = ["--algos", "pdo", "--tasks", TASK, "--seeds", "1", "--hyperparams-dir", str(tmp_path), "--out", str(tmp_path)]
+    assert benchmark.main([*argv, "--variant", "shielded", "--dry-run"]) == 0
+    assert "--algo pdo --env" in capsys.readouterr().out  # the train command runs the algorithm itself
+    # one finished run of each: the variant is read back as its own row, after its algorithm's, named after it
+    for variant, violations in (("", 40), ("shielded", 0)):
+        run_dir = layout.run_dir_for(tmp_path / "out", TASK, run_name("pdo", variant), 0)
+        run_dir.mkdir(parents=True)
+        summary = {"task": TASK, "algo": "pdo", "variant": variant, "seed": 0, "steps": STEPS, "episodes": 2}
+        summary |= {"cumulative_violations": violations, "safety_rate": 50.0, "return_last_n": 1.0}
+        curve = pd.DataFrame({"timesteps": [256, 512], "return": [0.0, 1.0]})
+        layout.write_finished(run_dir, summary, curve.to_csv(index=False))
+    summaries, curves = stats.load_results(tmp_path / "out")
+    assert sorted(summaries["algo"]) == ["pdo", "pdo-shielded"] and set(curves) == {(TASK, "pdo"), (TASK, "pdo-shielded")}
+    table = stats.aggregate(summaries)
+    assert list(table["algo"]) == ["pdo", "pdo-shielded"]
+    markdown = tables.safety_tables_markdown(table)
+    assert "| PDO | 10 ↑ |" in markdown and "| PDO (shielded) | 0 |" in markdown
+    assert markdown.count("74.53 ± 7.53") == 1  # the paper's PDO row is PDO's, not its variant's
+    assert sorted(["sppo", "pdo-shielded", "cpo", "pdo"], key=display.algo_sort_key) == ["cpo", "pdo", "pdo-shielded", "sppo"]

@@ -52,6 +52,12 @@ def parse_args(argv: Sequence[str] | None = None, default_hyperparams_dir: Path 
         default=None,
         help=f"folder of ALGO.yml files (default: {default_hyperparams_dir}; --fig7 dmc: its dmc/ subfolder)",
     )
+    parser.add_argument(
+        "--variant",
+        default="",
+        help="name these runs as a variant of their algorithms, run under other settings (e.g. --hyperparams-dir\n"
+        "hyperparams/point_shielded --variant shielded): folders OUT/<task>/<algo>-<variant>, rows 'CPO (shielded)'",
+    )
     parser.add_argument("--quick", action="store_true", help="tiny preset: 2 seeds, 2048 steps (Half-Cheetah: 256)")
     fig7 = (
         f"Fig. 7 grid: {' '.join(grid.FIG7_ALGOS)} on {' '.join(grid.FIG7_TASKS)};\n"
@@ -180,6 +186,7 @@ def main(argv: Sequence[str] | None = None, default_hyperparams_dir: Path = REPO
             args.device,
             shlex.split(args.zoo_args),
             args.last_n,
+            args.variant,
         )
     except ValueError as exc:
         raise SystemExit(f"benchmark: {exc}") from None

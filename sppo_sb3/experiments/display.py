@@ -6,35 +6,42 @@ import re
 
 from sppo_sb3.algorithms import ALGORITHMS, DISPLAY_ORDER, ZOO_BASELINES
 from sppo_sb3.envs.dmc import action_repeat
+from sppo_sb3.experiments.spec import split_run_name
 
 #: the paper's names of its constrained tasks
 TASK_NAMES: dict[str, str] = {"SafePointCircle-v0": "Point Robot", "SafeHalfCheetahHeight-v1": "Half-Cheetah"}
 
 
-def display_name(algo: str) -> str:
-    """``SPPO (ours)``, ``PDO``, ... for the listed algorithms, the name itself otherwise.
+def display_name(name: str) -> str:
+    """``SPPO (ours)``, ``PDO``, ... for the listed algorithms, the name itself otherwise; a variant's after its
+    algorithm's (``cpo-shielded``: ``CPO (shielded)``).
 
-    :param algo: rl-zoo3 name of the algorithm.
+    :param name: rl-zoo3 name of the algorithm, or a row name ``<algo>-<variant>``.
     """
+    algo, variant = split_run_name(name)
     known = ALGORITHMS.get(algo) or ZOO_BASELINES.get(algo)
-    return known.display_name if known else algo
+    base = known.display_name if known else algo
+    return f"{base} ({variant})" if variant else base
 
 
-def algo_color(algo: str) -> str | None:
-    """The algorithm's matplotlib colour (``None``: matplotlib's next one).
+def algo_color(name: str) -> str | None:
+    """The algorithm's matplotlib colour; ``None`` (matplotlib's next one) for the others and for variants, so that a
+    variant's line is told from its algorithm's.
 
-    :param algo: rl-zoo3 name of the algorithm.
+    :param name: rl-zoo3 name of the algorithm, or a row name ``<algo>-<variant>``.
     """
-    known = ALGORITHMS.get(algo) or ZOO_BASELINES.get(algo)
+    known = ALGORITHMS.get(name) or ZOO_BASELINES.get(name)
     return known.color if known else None
 
 
-def algo_sort_key(algo: str) -> tuple[int, str]:
-    """Paper order first (:data:`~sppo_sb3.algorithms.DISPLAY_ORDER`), unknown algorithms after, alphabetically.
+def algo_sort_key(name: str) -> tuple[int, str, str]:
+    """Paper order first (:data:`~sppo_sb3.algorithms.DISPLAY_ORDER`), unknown algorithms after, alphabetically; a
+    variant right after its algorithm.
 
-    :param algo: algorithm name.
+    :param name: algorithm name, or a row name ``<algo>-<variant>``.
     """
-    return (DISPLAY_ORDER.index(algo) if algo in DISPLAY_ORDER else len(DISPLAY_ORDER), algo)
+    algo, variant = split_run_name(name)
+    return (DISPLAY_ORDER.index(algo) if algo in DISPLAY_ORDER else len(DISPLAY_ORDER), algo, variant)
 
 
 def task_title(task: str) -> str:

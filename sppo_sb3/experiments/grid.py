@@ -9,7 +9,7 @@ from sppo_sb3.algorithms import PAPER_ALGORITHMS
 from sppo_sb3.envs.dmc import FIG7_DMC_TASKS, dmc_id
 from sppo_sb3.experiments import layout
 from sppo_sb3.experiments.configs import resolve_config
-from sppo_sb3.experiments.spec import RunSpec
+from sppo_sb3.experiments.spec import RunSpec, check_variant, run_name
 
 #: the paper's comparison: the package's algorithms the paper compares (configured by ``--hyperparams-dir/ALGO.yml``;
 #: the others, e.g. ``saclag``, run when named with ``--algos``)
@@ -77,6 +77,7 @@ def build_grid(
     device: str = "auto",
     zoo_args: Sequence[str] = (),
     last_n: int = 10,
+    variant: str = "",
 ) -> list[RunSpec]:
     """All runs of the grid, tasks outermost (configs are checked for every pair before anything runs).
 
@@ -90,9 +91,11 @@ def build_grid(
     :param device: PyTorch device.
     :param zoo_args: extra train-command arguments.
     :param last_n: final episodes averaged into the reported return.
-    :raises ValueError: a pair without hyperparameters.
+    :param variant: the runs' variant name (:attr:`~sppo_sb3.experiments.spec.RunSpec.variant`; ``""``: none).
+    :raises ValueError: a pair without hyperparameters, or a bad variant name.
     """
     per_task = steps_per_task or {}
+    check_variant(variant)
     specs = []
     for task in tasks:
         for algo in algos:
@@ -103,12 +106,13 @@ def build_grid(
                         task=task,
                         algo=algo,
                         seed=seed,
-                        run_dir=str(layout.run_dir_for(out, task, algo, seed)),
+                        run_dir=str(layout.run_dir_for(out, task, run_name(algo, variant), seed)),
                         steps=per_task.get(task, steps_default),
                         config_text=config_text,
                         device=device,
                         zoo_args=list(zoo_args),
                         last_n=last_n,
+                        variant=variant,
                     )
                 )
     return specs

@@ -1,6 +1,7 @@
 """The run-folder format of the benchmark, written by the runner and read by the plots: defined here only.
 
-A grid's output folder ``OUT`` holds one folder per run, ``OUT/<task>/<algo>/seed_<s>/``, with:
+A grid's output folder ``OUT`` holds one folder per run, ``OUT/<task>/<name>/seed_<s>/`` (``name``: the algorithm's, or
+``<algo>-<variant>`` for a variant, :func:`~sppo_sb3.experiments.spec.run_name`), with:
 
 - ``curve.csv``: one row per finished training episode, the columns :data:`CURVE_COLUMNS`: ``timesteps`` (env steps
   at its end), ``episode``, ``return``, ``length``, ``cost``, ``violations``, ``cumulative_violations``, ``time``
@@ -50,15 +51,15 @@ def task_dirname(task: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", task)
 
 
-def run_dir_for(out: Path, task: str, algo: str, seed: int) -> Path:
-    """``OUT/<task>/<algo>/seed_<s>``.
+def run_dir_for(out: Path, task: str, name: str, seed: int) -> Path:
+    """``OUT/<task>/<name>/seed_<s>``.
 
     :param out: the grid's output folder.
     :param task: gymnasium id.
-    :param algo: algorithm name.
+    :param name: the run's row name (the algorithm's, or ``<algo>-<variant>``).
     :param seed: seed.
     """
-    return out / task_dirname(task) / algo / f"seed_{seed}"
+    return out / task_dirname(task) / name / f"seed_{seed}"
 
 
 def is_finished(run_dir: Path) -> bool:

@@ -2,7 +2,41 @@
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
+
+#: between an algorithm's name and its variant's in row names and run folders (``cpo-shielded``)
+VARIANT_SEPARATOR = "-"
+VARIANT_PATTERN = re.compile(r"[A-Za-z0-9_]+")
+
+
+def check_variant(variant: str) -> str:
+    """``variant`` if it is ``""`` or letters, digits and ``_``.
+
+    :param variant: a variant's name.
+    :raises ValueError: any other name (it becomes part of a folder's name and is split off at the separator).
+    """
+    if variant and not VARIANT_PATTERN.fullmatch(variant):
+        raise ValueError(f"variant {variant!r}: use letters, digits and '_' only (e.g. 'shielded')")
+    return variant
+
+
+def run_name(algo: str, variant: str = "") -> str:
+    """A run's row name: ``algo``, or ``algo-variant`` for a variant (the row of the tables and the run's folder).
+
+    :param algo: rl-zoo3 name of the algorithm.
+    :param variant: the variant's name (``""``: none).
+    """
+    return f"{algo}{VARIANT_SEPARATOR}{variant}" if variant else algo
+
+
+def split_run_name(name: str) -> tuple[str, str]:
+    """``(algo, variant)`` of a row name (:func:`run_name`'s inverse; rl-zoo3's names have no ``-``).
+
+    :param name: a row name.
+    """
+    algo, _, variant = name.partition(VARIANT_SEPARATOR)
+    return algo, variant
 
 
 @dataclass
@@ -12,12 +46,14 @@ class RunSpec:
     :param task: gymnasium id of the task.
     :param algo: rl-zoo3 name of the algorithm.
     :param seed: random seed.
-    :param run_dir: the run's output folder (``OUT/<task>/<algo>/seed_<s>``), as seen by the driver.
+    :param run_dir: the run's output folder (``OUT/<task>/<name>/seed_<s>``), as seen by the driver.
     :param steps: env steps (``-n``); ``None``: the hyperparameter file's ``n_timesteps``.
     :param config_text: the yml given to ``-conf`` (written into the run folder); ``None``: rl-zoo3's own.
     :param device: PyTorch device (``--device`` of the train command).
     :param zoo_args: extra arguments for the train command (after the runner's own, so they win).
     :param last_n: number of final episodes averaged into the reported return.
+    :param variant: names runs of ``algo`` under other settings than its own (e.g. ``shielded``: behind
+        :class:`~sppo_sb3.shield.ShieldWrapper`); their folders and table rows are ``<algo>-<variant>``. ``""``: none.
     """
 
     task: str
@@ -29,8 +65,14 @@ class RunSpec:
     device: str = "auto"
     zoo_args: list[str] = field(default_factory=list)
     last_n: int = 10
+    variant: str = ""
+
+    @property
+    def name(self) -> str:
+        """The run's row name: ``algo``, or ``algo-variant`` for a variant."""
+        return run_name(self.algo, self.variant)
 
     @property
     def label(self) -> str:
-        """``task / algo / seed`` for progress lines."""
-        return f"{self.task} / {self.algo} / seed {self.seed}"
+        """``task / name / seed`` for progress lines."""
+        return f"{self.task} / {self.name} / seed {self.seed}"

@@ -21,6 +21,7 @@ import pandas as pd
 
 from sppo_sb3.experiments import layout
 from sppo_sb3.experiments.display import algo_sort_key
+from sppo_sb3.experiments.spec import run_name
 
 #: the ``summary.json`` figures aggregated as mean and std over seeds
 AGGREGATED_KEYS: tuple[str, ...] = (
@@ -77,15 +78,17 @@ def load_results(root: Path) -> tuple[pd.DataFrame, dict[tuple[str, str], list[p
     """The finished runs under a grid's output folder (:mod:`sppo_sb3.experiments.layout`).
 
     :param root: the benchmark's output folder.
-    :return: one row of ``summary.json`` per run, with its :func:`training_return_mean` as ``return_training_mean``,
-        and the runs' curves by ``(task, algo)`` (seed order).
+    :return: one row of ``summary.json`` per run, with its :func:`training_return_mean` as ``return_training_mean``
+        and its row name (:func:`~sppo_sb3.experiments.spec.run_name`: ``cpo-shielded`` for a variant) as ``algo``, and
+        the runs' curves by ``(task, algo)`` (seed order).
     """
     rows: list[dict[str, Any]] = []
     curves: dict[tuple[str, str], list[pd.DataFrame]] = {}
     for run_dir in layout.finished_run_dirs(root):
         summary, curve = layout.read_summary(run_dir), layout.read_curve(run_dir)
-        rows.append({**summary, "return_training_mean": training_return_mean(curve)})
-        curves.setdefault((summary["task"], summary["algo"]), []).append(curve)
+        name = run_name(summary["algo"], summary.get("variant", ""))
+        rows.append({**summary, "algo": name, "return_training_mean": training_return_mean(curve)})
+        curves.setdefault((summary["task"], name), []).append(curve)
     return pd.DataFrame(rows), curves
 
 

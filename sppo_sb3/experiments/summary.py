@@ -109,6 +109,7 @@ def summarize(
     summary: dict[str, Any] = {
         "task": spec.task,
         "algo": spec.algo,
+        "variant": spec.variant,
         "seed": spec.seed,
         "steps": timesteps,
         "episodes": episodes,

@@ -79,6 +79,8 @@ SAFETY_ESTIMATES: tuple[tuple[str, int, str], ...] = (
     ("safety_rate", 2, "Safety rate (%)"),
     ("return_last_n", 2, "Return (last episodes)"),
     ("return_training_mean", 2, "Return (mean over training)"),
+    ("eval_unshielded_return", 2, "Deployed without shield: return"),
+    ("eval_unshielded_safe_rate", 1, "Deployed without shield: safe episodes (%)"),
 )
 
 
@@ -111,8 +113,9 @@ def safety_tables_markdown(table: pd.DataFrame) -> str:
         "paper (`0`: none; `10 ↓`: 1–9; `10^k ↑`: at least 10^k). Safety rate: episodes without a violation / all",
         "training episodes. Return (last episodes): mean training-episode return of each run's last episodes. Return",
         "(mean over training): each run's learning curve averaged over its env steps, its area over its length (higher:",
-        "learned sooner). Env steps/s: training throughput (start-up excluded), mean over seeds. The paper's safety",
-        "rate is mean ± std.",
+        "learned sooner). Deployed without shield: the final policy alone, on fresh episodes (`sppo-train`'s deployment",
+        "check). Env steps/s: training throughput (start-up excluded), mean over seeds. The paper's safety rate is",
+        "mean ± std.",
         INTERVAL_LEGEND,
         "",
     ]
