@@ -277,7 +277,8 @@ def test_refine_shield_fits_a_learned_rule_toward_the_point_rules_cost_value() -
     states, actions = random_walk_pairs(3000, seed=123)
     reference = model_rule.definition2_value(states, actions)
     dangerous, harmless = reference > 0.5, reference == 0.0
-    assert rule.definition2_value(states, actions).max() == 0.0  # untrained: Q̄ ≡ 0
+    untrained = rule.definition2_value(states, actions)
+    assert np.all(untrained == untrained[0]) and untrained[0] < 1e-3  # untrained: Q̄ constant near 0
     model.train(gradient_steps=500, batch_size=256)
     learned = rule.definition2_value(states, actions)
     error, gap = np.abs(learned - reference).mean(), learned[dangerous].mean() - learned[harmless].mean()
@@ -286,3 +287,20 @@ def test_refine_shield_fits_a_learned_rule_toward_the_point_rules_cost_value() -
     assert gap > 0.02
     with pytest.raises(ValueError, match="refine_shield=True"):
         SPPO("TOLDPolicy", "SafePointCircle-v0", refine_shield=True, compile=False)
+
+
+@pytest.mark.parametrize("refine", [True, False])
+def test_refine_shield_warms_up_with_some_backup_actions(refine: bool) -> None:
+    """With refine_shield, a share of the warm-up steps execute ζ(s), whose Q̄ every target reads; without, none."""
+    env = gym.make("SafePointCircle-v0")
+    brake = PointCircleShieldingRule().backup_action
+    rule = LearnedCostCriticRule(env.observation_space, env.action_space, brake, seed=0)
+    kwargs = dict(learning_starts=600, policy_kwargs=TINIEST_TOLD, horizon=2, compile=False, seed=0)
+    model = SPPO("TOLDPolicy", env, shield=rule, refine_shield=refine, refine_backup_fraction=0.25, **kwargs)
+    model.learn(600)
+    buffer = model.replay_buffer
+    obs, actions = buffer.observations[:600, 0].astype(np.float64), model.policy.unscale_action(buffer.actions[:600, 0])
+    share = float(np.all(np.abs(actions - brake(obs)) < 1e-5, axis=1).mean())
+    assert (0.17 < share < 0.33) if refine else share == 0.0
+    with pytest.raises(ValueError, match="refine_backup_fraction"):
+        SPPO("TOLDPolicy", env, shield=rule, refine_shield=True, refine_backup_fraction=1.5, **kwargs)

@@ -8,18 +8,24 @@ afterwards — is learned, by fitted policy evaluation of ``ζ`` on the transiti
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, Literal
 
 import gymnasium as gym
 import numpy as np
 import torch as th
+from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.utils import get_device
 from torch import nn
 
 from sppo_sb3.shield.base import ShieldingRule, advantage_from_values
 
 BackupPolicy = Callable[[np.ndarray], np.ndarray]
+#: added to the observations' running variance before its square root (as SB3's VecNormalize)
+OBS_EPSILON = 1e-8
+#: the critic's logit before learning: ``Q̄ = γ·σ(INITIAL_LOGIT) ≈ 0.001·γ`` everywhere
+INITIAL_LOGIT = math.log(1e-3 / (1.0 - 1e-3))
 
 
 def _bounds_scaler(space: gym.spaces.Box) -> tuple[np.ndarray, np.ndarray]:
@@ -51,19 +57,22 @@ class LearnedCostCriticRule(ShieldingRule):
 
     ``Q̄`` is fitted by the backup's Bellman targets on real transitions ``(s, a, ĉ, s', done)`` of the buffer ``B``:
 
-    ``Q̄(s, a) ← clip(ĉ(s, a) + γ·(1 - done)·Q̄⁻(s', ζ(s')), 0, γ)``
+    ``Q̄(s, a) ← min(ĉ(s, a) + γ·(1 - done)·Q̄⁻(s', ζ(s')), γ)``
 
-    where ``Q̄⁻`` is an EMA target copy of the critic. Targets and predictions are clamped to ``[0, γ]``, the range of
-    Definition 2 (a β-adoptable rule); by Proposition 2.3 a critic within ``δ`` of an adoptable ``Q̄`` gives a
-    ``(β + (1 + γ)δ)``-adoptable rule. With ``η >= 0`` the backup action is never shielded (Proposition 1) whatever the
-    weights are: :meth:`advantage` evaluates ``Q̄(s, a)`` and ``Q̄(s, ζ(s))`` in two forward passes of the same shape,
-    so that ``a = ζ(s)`` gives ``Ā = 0`` exactly.
+    where ``Q̄⁻`` is an EMA target copy of the critic. The critic's output lies in ``(0, γ)``, the range of
+    Definition 2 (a β-adoptable rule), by construction: ``Q̄ = γ·σ(f(s, a))``, fitted by the cross-entropy of
+    ``σ(f)`` and ``target / γ``. So no target is clipped at 0: a critic's noise around 0 averages out instead of only
+    ever pushing the targets up, which compounds over the backups at ``γ`` close to 1. The loss is a proper scoring
+    rule, so its minimiser is the mean target, as least squares'. By Proposition 2.3 a critic within ``δ`` of an
+    adoptable ``Q̄`` gives a ``(β + (1 + γ)δ)``-adoptable rule. With ``η >= 0`` the backup action is never shielded
+    (Proposition 1) whatever the weights are: :meth:`advantage` evaluates ``Q̄(s, a)`` and ``Q̄(s, ζ(s))`` in two
+    forward passes of the same shape, so that ``a = ζ(s)`` gives ``Ā = 0`` exactly.
 
     **The shaped cost it expects** (``shaped_costs`` of :meth:`update`): ``ĉ`` of eq. 18 for the step,
     ``ĉ = 1[dist = 0]`` if ``α = 0`` else ``max(0, 1 - dist / α)``, with ``dist`` the distance from the state the
     step leads to (``s'``) to the unsafe set — e.g. ``info["shaped_cost"]`` of ``SafePointCircle-v0``. A step that
     enters the unsafe set has ``ĉ = 1`` and must be passed with ``done = True`` (the unsafe set is absorbing).
-    Because values are clamped at ``γ``, a wide band ``α`` saturates ``Q̄`` near the unsafe set, where the shield then
+    Because values are capped at ``γ``, a wide band ``α`` saturates ``Q̄`` near the unsafe set, where the shield then
     cannot rank actions any more (``Ā = 0``): prefer ``α = 0`` or a narrow band, or pass
     :func:`definition2_step_costs` (``γ (1 - γ) ĉ``, and ``γ`` on a violation), which gives the model-based rules'
     ``Q̄`` on Definition 2's scale; ``SPPO(refine_shield=True)`` does. ``done`` must be termination only, not a
@@ -72,18 +81,22 @@ class LearnedCostCriticRule(ShieldingRule):
     A learned ``Q̄`` carries approximation error, so with ``η = 0`` tiny positive ``Ā`` between equally safe actions
     get shielded: choose ``η`` above the critic's error (the paper uses ``η = 0.2`` where ``Q̄`` is approximate).
 
-    Observations and actions are rescaled to ``[-1, 1]`` with the spaces' bounds where those are finite.
+    Observations are standardised by their running mean and standard deviation over the transitions :meth:`update`
+    has seen (the bounds of an observation space are often far wider than the states a task visits); actions are
+    rescaled to ``[-1, 1]`` by the action space's bounds.
 
     :param observation_space: the env's (flat, Box) observation space; the rule reads raw observations.
     :param action_space: the env's Box action space.
     :param backup_policy: the known backup ``ζ``: ``obs`` ``(B, obs_dim)`` ndarray → ``(B, act_dim)`` ndarray of actions
         in the env's action units, inside the action space.
-    :param gamma: discount of ``Q̄``; also the upper clamp of Definition 2.
+    :param gamma: discount of ``Q̄``; also the upper bound of Definition 2.
     :param eta: advantage threshold ``η >= 0``.
     :param penalty: absorbing reward ``R̃ <= 0`` of eq. 7.
     :param net_arch: hidden layer sizes of the critic MLP (ReLU).
     :param lr: Adam learning rate.
-    :param tau: EMA coefficient of the target critic, applied after every gradient step.
+    :param tau: EMA coefficient of the target critic, applied after every gradient step. Each backup carries a cost
+        one step back along ``ζ``'s path, so a danger ``H`` backup steps ahead needs about ``H / tau`` gradient steps to
+        reach ``Q̄``.
     :param device: torch device (``"auto"``: CUDA when available).
     :param seed: seeds the critic's initial weights and the minibatch sampling (``None``: not seeded).
     """
@@ -127,7 +140,7 @@ class LearnedCostCriticRule(ShieldingRule):
         self.device = get_device(device)
         self.obs_dim = int(np.prod(observation_space.shape))
         self.act_dim = int(np.prod(action_space.shape))
-        self._obs_centre, self._obs_half = _bounds_scaler(observation_space)
+        self.obs_rms = RunningMeanStd(shape=(self.obs_dim,))
         self._act_centre, self._act_half = _bounds_scaler(action_space)
         self._rng = np.random.default_rng(seed)
 
@@ -148,15 +161,15 @@ class LearnedCostCriticRule(ShieldingRule):
             layers += [nn.Linear(in_dim, width), nn.ReLU()]
             in_dim = width
         head = nn.Linear(in_dim, 1)
-        # zero-initialised output (as TD-MPC's Q heads): Q̄ ≡ 0 before learning, so no initial bias has to be unlearnt
-        # at the slow rate γ per backup in the states the backup keeps cost-free forever
+        # a constant output before learning (as TD-MPC's zero-initialised Q heads): Ā ≡ 0, nothing is shielded yet, and
+        # Q̄ starts near 0, so no initial bias has to be unlearnt at the slow rate γ per backup
         nn.init.zeros_(head.weight)
-        nn.init.zeros_(head.bias)
+        nn.init.constant_(head.bias, INITIAL_LOGIT)
         return nn.Sequential(*layers, head).to(self.device)
 
     # ----------------------------------------------------------------------------------------------- evaluation
     def _inputs(self, obs: np.ndarray, actions: np.ndarray) -> th.Tensor:
-        """Critic input ``[s, a]`` with both parts rescaled to ``[-1, 1]`` by the spaces' bounds."""
+        """Critic input ``[s, a]``: ``s`` standardised by :attr:`obs_rms`, ``a`` rescaled to ``[-1, 1]``."""
         obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
         actions = np.asarray(actions, dtype=np.float64).reshape(len(actions), -1)
         if obs.shape[1] != self.obs_dim or actions.shape[1] != self.act_dim:
@@ -164,15 +177,15 @@ class LearnedCostCriticRule(ShieldingRule):
                 f"LearnedCostCriticRule was built for observations of size {self.obs_dim} and actions of size "
                 f"{self.act_dim}, got {obs.shape[1]} and {actions.shape[1]}."
             )
-        obs = (obs - self._obs_centre) / self._obs_half
+        obs = (obs - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + OBS_EPSILON)
         actions = (actions - self._act_centre) / self._act_half
         return th.as_tensor(np.concatenate([obs, actions], axis=1), dtype=th.float32, device=self.device)
 
     def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """``Q̄(s, a) ∈ [0, γ]`` of the critic for a batch: ``(B, obs_dim)``, ``(B, act_dim)`` → ``(B,)`` float64."""
+        """``Q̄(s, a) = γ·σ(f(s, a)) ∈ [0, γ]`` of the critic for a batch: ``(B, obs_dim)``, ``(B, act_dim)`` → ``(B,)``."""
         with th.no_grad():
-            raw = self.critic(self._inputs(obs, actions)).squeeze(-1).cpu().numpy().astype(np.float64)
-        return np.clip(raw, 0.0, self.gamma)  # in float64: a float32 γ would round above γ
+            logits = self.critic(self._inputs(obs, actions)).squeeze(-1).cpu().numpy().astype(np.float64)
+        return self.gamma / (1.0 + np.exp(-logits))  # in float64: a float32 γ·σ would round above γ
 
     def backup_action(self, obs: np.ndarray) -> np.ndarray:
         """The user's backup ``ζ(s)`` for a batch, as a float64 ``(B, act_dim)`` array (checked by ``check_action_space``)."""
@@ -201,11 +214,12 @@ class LearnedCostCriticRule(ShieldingRule):
         gradient_steps: int = 1,
         batch_size: int = 256,
     ) -> float:
-        """Fit ``Q̄`` on real transitions of ``B`` (Alg. 1 line 12) with the backup's clamped Bellman targets.
+        """Fit ``Q̄`` on real transitions of ``B`` (Alg. 1 line 12) with the backup's Bellman targets.
 
-        Each gradient step regresses ``Q̄(s, a)`` on ``clip(ĉ + γ·(1 - done)·Q̄⁻(s', ζ(s')), 0, γ)`` over a
-        minibatch of ``batch_size`` transitions drawn from the given arrays (all of them when there are fewer), then
-        moves the target critic ``Q̄⁻`` by EMA with ``tau``.
+        The observations' running statistics first take in ``obs``. Each gradient step fits ``Q̄(s, a)`` to
+        ``min(ĉ + γ·(1 - done)·Q̄⁻(s', ζ(s')), γ)`` (cross-entropy on the scale ``Q̄ / γ``) over a minibatch of
+        ``batch_size`` transitions drawn from the given arrays (all of them when there are fewer), then moves the
+        target critic ``Q̄⁻`` by EMA with ``tau``.
 
         :param obs: ``(N, obs_dim)`` raw observations ``s``.
         :param actions: ``(N, act_dim)`` executed actions ``a`` (the safe ones), in env action units.
@@ -214,7 +228,7 @@ class LearnedCostCriticRule(ShieldingRule):
         :param dones: ``(N,)`` terminations (entering the unsafe set); not time-limit truncations.
         :param gradient_steps: number of gradient steps.
         :param batch_size: minibatch size of each step.
-        :return: the mean squared TD error over the gradient steps.
+        :return: the mean squared TD error of ``Q̄`` over the gradient steps.
         """
         n = len(obs)
         shaped_costs = np.asarray(shaped_costs, dtype=np.float64).reshape(-1)
@@ -231,6 +245,7 @@ class LearnedCostCriticRule(ShieldingRule):
         obs = np.asarray(obs, dtype=np.float64).reshape(n, -1)
         actions = np.asarray(actions, dtype=np.float64).reshape(n, -1)
         next_obs = np.asarray(next_obs, dtype=np.float64).reshape(n, -1)
+        self.obs_rms.update(obs)
         costs_t = th.as_tensor(shaped_costs, dtype=th.float32, device=self.device)
         dones_t = th.as_tensor(dones, dtype=th.float32, device=self.device)
 
@@ -238,23 +253,23 @@ class LearnedCostCriticRule(ShieldingRule):
         for _ in range(gradient_steps):
             idx = self._rng.choice(n, size=batch_size, replace=False) if n > batch_size else np.arange(n)
             with th.no_grad():
-                next_q = self.critic_target(self._inputs(next_obs[idx], next_backup[idx])).squeeze(-1).clamp(0.0, self.gamma)
-                target = (costs_t[idx] + self.gamma * (1.0 - dones_t[idx]) * next_q).clamp(0.0, self.gamma)
-            # regress the raw output (not the clamped one) so that the gradient does not vanish outside [0, γ]
-            pred = self.critic(self._inputs(obs[idx], actions[idx])).squeeze(-1)
-            loss = nn.functional.mse_loss(pred, target)
+                next_q = self.gamma * th.sigmoid(self.critic_target(self._inputs(next_obs[idx], next_backup[idx])).squeeze(-1))
+                target = (costs_t[idx] + self.gamma * (1.0 - dones_t[idx]) * next_q).clamp(max=self.gamma)
+            logits = self.critic(self._inputs(obs[idx], actions[idx])).squeeze(-1)
+            loss = nn.functional.binary_cross_entropy_with_logits(logits, target / self.gamma)
             self.optimizer.zero_grad()
             loss.backward()
             self.optimizer.step()
             with th.no_grad():
                 for param, target_param in zip(self.critic.parameters(), self.critic_target.parameters()):
                     target_param.mul_(1.0 - self.tau).add_(param, alpha=self.tau)
-            losses.append(loss.item())
+                losses.append(float(((self.gamma * th.sigmoid(logits) - target) ** 2).mean()))
         return float(np.mean(losses)) if losses else 0.0
 
     # ----------------------------------------------------------------------------------------------- persistence
     def state_dict(self) -> dict[str, Any]:
-        """Critic, target critic and optimiser states plus the settings they depend on (``torch.save``-able).
+        """Critic, target critic and optimiser states, the observations' statistics and the settings they depend on
+        (``torch.save``-able).
 
         The backup policy is code, not state: pass it again to the constructor before :meth:`load_state_dict`.
         """
@@ -262,6 +277,9 @@ class LearnedCostCriticRule(ShieldingRule):
             "critic": self.critic.state_dict(),
             "critic_target": self.critic_target.state_dict(),
             "optimizer": self.optimizer.state_dict(),
+            "obs_mean": self.obs_rms.mean.copy(),
+            "obs_var": self.obs_rms.var.copy(),
+            "obs_count": self.obs_rms.count,
             "obs_dim": self.obs_dim,
             "act_dim": self.act_dim,
             "net_arch": self.net_arch,
@@ -284,4 +302,6 @@ class LearnedCostCriticRule(ShieldingRule):
         self.critic.load_state_dict(state["critic"])
         self.critic_target.load_state_dict(state["critic_target"])
         self.optimizer.load_state_dict(state["optimizer"])
+        self.obs_rms.mean, self.obs_rms.var = np.array(state["obs_mean"]), np.array(state["obs_var"])
+        self.obs_rms.count = float(state["obs_count"])
         self.gamma, self.eta, self.tau = float(state["gamma"]), float(state["eta"]), float(state["tau"])

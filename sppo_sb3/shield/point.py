@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 from typing import Any, Literal
 
@@ -87,6 +88,13 @@ class PointCircleShieldingRule(ShieldingRule):
         # the wall backup brakes y beyond this |y|: entering at full speed, it stops a step's travel short of the band
         step = self.params.max_speed * self.params.dt
         self.y_zone = self.params.y_limit - alpha - braking_distance(self.params.max_speed, self.params) - 2.0 * step
+
+    def band_free(self) -> PointCircleShieldingRule:
+        """This rule with ``α = 0`` and the same backup: its ``Q̄`` is positive exactly where "``a``, then ``ζ``" enters
+        the unsafe set (:func:`~sppo_sb3.shield.quality.violation_labels`)."""
+        twin = copy.copy(self)
+        twin.alpha = 0.0  # y_zone stays: the backup is this rule's
+        return twin
 
     def backup_action(self, obs: np.ndarray) -> np.ndarray:
         """Braking force ``clip(-m·v/dt, -1, 1)`` (exactly to rest once the speed is small), on the axes it brakes."""

@@ -94,6 +94,10 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         learnable rule, :class:`~sppo_sb3.shield.LearnedCostCriticRule`, and an env reporting ``info["shaped_cost"]``.
         For tasks without a model to roll ``Q̄`` on: only the backup policy ``ζ`` has to be known. The rule starts
         knowing nothing (``Q̄ ≡ 0`` shields nothing), so it protects only once it has seen the task's costs.
+    :param refine_backup_fraction: with ``refine_shield``, the share of warm-up steps (before ``learning_starts``)
+        that execute the backup ``ζ(s)`` instead of a uniform action. Every target of the learned ``Q̄`` reads it at
+        ``(s', ζ(s'))``, and the backup's actions (e.g. full braking, a corner of the action box) are ones uniform
+        actions almost never take: these steps put them in ``B``. Not in the paper (its Alg. 1 warms up uniformly).
     :param planner_kwargs: :class:`MPPIConfig` overrides.
     :param topo_kwargs: :class:`TOPOConfig` overrides.
     :param plan_at_predict: ``predict`` plans with MPPI (``True``) or acts with the policy prior alone (fast).
@@ -146,6 +150,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         absorbing_penalty: float | None = None,
         termination_model: bool = False,
         refine_shield: bool = False,
+        refine_backup_fraction: float = 0.25,
         planner_kwargs: dict[str, Any] | None = None,
         topo_kwargs: dict[str, Any] | None = None,
         plan_at_predict: bool = True,
@@ -193,6 +198,11 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         self.absorbing_penalty = absorbing_penalty
         self.termination_model = termination_model
         self.refine_shield = refine_shield
+        if not 0.0 <= refine_backup_fraction <= 1.0:
+            raise ValueError(
+                f"refine_backup_fraction is a share of the warm-up steps, in [0, 1]; got {refine_backup_fraction}."
+            )
+        self.refine_backup_fraction = refine_backup_fraction
         self.planner_config = MPPIConfig(**{"gamma": gamma, "horizon": horizon, **(planner_kwargs or {})})
         self.topo_config = TOPOConfig(**{"gamma": gamma, **(topo_kwargs or {})})
         self.plan_at_predict = plan_at_predict
@@ -297,10 +307,19 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         return setup
 
     # ------------------------------------------------------------------ exploration phase (Alg. 1 lines 3–9)
-    def _propose_actions(self, obs: np.ndarray, learning_starts: int) -> np.ndarray:
-        """The unshielded planner's flat actions in [-1, 1]: uniform during warm-up, MPPI afterwards (Alg. 2)."""
+    def _propose_actions(self, obs: np.ndarray, raw_obs: np.ndarray, learning_starts: int) -> np.ndarray:
+        """The unshielded planner's flat actions in [-1, 1]: uniform during warm-up (some of them the backup's, with
+        ``refine_shield``), MPPI afterwards (Alg. 2)."""
         if self.num_timesteps < learning_starts:
-            return np.random.uniform(-1.0, 1.0, size=(len(obs), self.planner.action_dim)).astype(np.float32)
+            warmup = np.random.uniform(-1.0, 1.0, size=(len(obs), self.planner.action_dim)).astype(np.float32)
+            if self.refine_shield and self.refine_backup_fraction > 0.0:
+                assert self.shield_rule is not None
+                backup = np.random.random(len(obs)) < self.refine_backup_fraction
+                if backup.any():
+                    zeta = self.shield_rule.checked_backup(raw_obs[backup], self.planner.action_dim)
+                    zeta = zeta.reshape(-1, *self.action_space.shape)  # type: ignore[misc]
+                    warmup[backup] = self.policy.scale_action(zeta).reshape(int(backup.sum()), -1)
+            return warmup
         obs_tensor = th.as_tensor(obs, dtype=th.float32, device=self.device)
         actions, self._plan_mean = self.planner.plan(self.policy.model, obs_tensor, self._plan_mean, self.num_timesteps)
         return actions.cpu().numpy()
@@ -333,7 +352,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         callback.on_rollout_start()
         while should_collect_more_steps(train_freq, num_collected_steps, num_collected_episodes):
             raw_obs = self._last_original_obs if self._vec_normalize_env is not None else self._last_obs
-            proposed = self._propose_actions(self._last_obs, learning_starts)  # type: ignore[arg-type]
+            proposed = self._propose_actions(self._last_obs, raw_obs, learning_starts)  # type: ignore[arg-type]
             proposed_env = self._env_actions(proposed)
             actions, intervened = self._shield(raw_obs, proposed_env)  # type: ignore[arg-type]
 

@@ -1,0 +1,142 @@
+"""How well a learned ``Q̄`` knows where the danger is on the Point Robot: ``scripts/learned_shield.py``.
+
+A :class:`~sppo_sb3.shield.LearnedCostCriticRule` with the Point rule's backup is fitted on the transitions of a
+random walk whose actions are each held for ``--hold`` steps (so that the robot meets the wall), a share of its steps
+the backup's, then scored against the model rule (:mod:`sppo_sb3.shield.quality`) on a held-out walk of another
+seed, beside ``Q̄ ≡ 0`` and a predictor from the distance alone, and its decisions at several ``η``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import gymnasium as gym
+import numpy as np
+
+from sppo_sb3.common.keys import COST_KEY, SHAPED_COST_KEY
+from sppo_sb3.envs.point_circle import PointParams, point_distance_to_unsafe
+from sppo_sb3.shield import LearnedCostCriticRule, PointCircleShieldingRule, quality
+from sppo_sb3.shield.learned import definition2_step_costs
+
+TASK = "SafePointCircle-v0"
+#: decision thresholds on Definition 2's scale at which the learned rule's decisions are compared
+ETAS: tuple[float, ...] = (0.0, 0.003, 0.01, 0.03, 0.1)
+
+
+@dataclass
+class Walk:
+    """A walk's transitions, as :meth:`LearnedCostCriticRule.update` takes them, and its violations."""
+
+    obs: np.ndarray
+    actions: np.ndarray
+    step_costs: np.ndarray
+    next_obs: np.ndarray
+    dones: np.ndarray
+    violations: int
+
+
+def held_action_walk(steps: int, seed: int, hold: int, backup_fraction: float, rule: PointCircleShieldingRule) -> Walk:
+    """A walk on the Point Robot: a uniform action held for ``hold`` steps, or on a ``backup_fraction`` of the steps ζ.
+
+    :param steps: env steps.
+    :param seed: seed of the env and the actions.
+    :param hold: steps each uniform action is held.
+    :param backup_fraction: share of the steps that execute the rule's backup instead.
+    :param rule: the rule whose backup the walk uses and whose ``γ`` the step costs take.
+    """
+    env, rng = gym.make(TASK), np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    rows: dict[str, list] = {key: [] for key in ("obs", "actions", "shaped", "violations", "next_obs", "dones")}
+    held = rng.uniform(-1.0, 1.0, 2)
+    for t in range(steps):
+        if t % hold == 0:
+            held = rng.uniform(-1.0, 1.0, 2)
+        backup = rng.random() < backup_fraction
+        action = rule.backup_action(obs[None].astype(np.float64))[0] if backup else held
+        next_obs, _, terminated, truncated, info = env.step(action.astype(np.float32))
+        for key, value in zip(rows, (obs, action, info[SHAPED_COST_KEY], info[COST_KEY], next_obs, terminated)):
+            rows[key].append(value)
+        obs = next_obs if not (terminated or truncated) else env.reset()[0]
+    violations = np.array(rows["violations"]) > 0
+    return Walk(
+        obs=np.array(rows["obs"], dtype=np.float64),
+        actions=np.array(rows["actions"], dtype=np.float64),
+        step_costs=definition2_step_costs(np.array(rows["shaped"]), violations, rule.gamma),
+        next_obs=np.array(rows["next_obs"], dtype=np.float64),
+        dones=np.array(rows["dones"]) | violations,
+        violations=int(violations.sum()),
+    )
+
+
+def fit_critic(walk: Walk, rule: PointCircleShieldingRule, seed: int, gradient_steps: int) -> LearnedCostCriticRule:
+    """A learned rule with ``rule``'s backup, fitted on ``walk`` for ``gradient_steps`` minibatches of 256."""
+    space = gym.make(TASK)
+    critic = LearnedCostCriticRule(space.observation_space, space.action_space, rule.backup_action, seed=seed)
+    for _ in range(max(gradient_steps // 100, 1)):
+        critic.update(walk.obs, walk.actions, walk.step_costs, walk.next_obs, walk.dones, 100, 256)
+    return critic
+
+
+def score_table(
+    critic: LearnedCostCriticRule, reference: PointCircleShieldingRule, evaluation: Walk, fitting: Walk
+) -> dict[str, quality.ShieldScores]:
+    """The learned rule's, ``Q̄ ≡ 0``'s and the distance predictor's scores on ``evaluation``'s pairs."""
+    obs, actions = evaluation.obs, evaluation.actions
+    reference_q, shielded = reference.definition2_value(obs, actions), quality.shielded_pairs(reference, obs, actions)
+    violates = quality.violation_labels(reference.band_free(), obs, actions)
+    params = PointParams()
+    return {
+        "learned": quality.rule_scores(critic, obs, actions, reference_q, shielded, violates),
+        "Q̄ ≡ 0": quality.zero_scores(reference_q, shielded, violates),
+        "distance alone": quality.distance_scores(
+            point_distance_to_unsafe(obs, params),
+            reference_q,
+            shielded,
+            violates,
+            point_distance_to_unsafe(fitting.obs, params),
+            reference.definition2_value(fitting.obs, fitting.actions),
+        ),
+    }
+
+
+def eta_rows(critic: LearnedCostCriticRule, reference: PointCircleShieldingRule, evaluation: Walk) -> list[str]:
+    """Markdown rows: the learned rule's decisions against the reference's at each of :data:`ETAS`."""
+    shielded = quality.shielded_pairs(reference, evaluation.obs, evaluation.actions)
+    rows, eta = [], critic.eta
+    for critic.eta in ETAS:
+        mine = quality.shielded_pairs(critic, evaluation.obs, evaluation.actions)
+        rows.append(
+            f"| {critic.eta} | {(mine == shielded).mean():.3f} | {mine[shielded].mean():.3f} | {mine[~shielded].mean():.3f} |"
+        )
+    critic.eta = eta
+    return rows
+
+
+def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
+    """Command-line options (see ``--help``)."""
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--steps", type=int, default=10_000, help="env steps of the fitting walk (default: 10000)")
+    parser.add_argument("--hold", type=int, default=20, help="steps each random action is held (default: 20)")
+    parser.add_argument("--backup-fraction", type=float, default=0.25, help="share of backup steps (default: 0.25)")
+    parser.add_argument("--gradient-steps", type=int, default=2000, help="minibatches of 256 (default: 2000)")
+    parser.add_argument("--seeds", type=int, default=2, help="seeds 0..N-1 (default: 2)")
+    return parser.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print, per seed, the scores table and the decisions at each ``η``."""
+    args = parse_args(argv)
+    reference = PointCircleShieldingRule()
+    for seed in range(args.seeds):
+        walk = held_action_walk(args.steps, seed, args.hold, args.backup_fraction, reference)
+        evaluation = held_action_walk(3000, 1000 + seed, args.hold, 0.0, reference)
+        critic = fit_critic(walk, reference, seed, args.gradient_steps)
+        print(f"\n### Seed {seed}: fitted on {args.steps} steps ({walk.violations} violations)\n")
+        print("| predictor | MAE | agreement | recall | false shields | AUC |\n|---|---|---|---|---|---|")
+        for name, scores in score_table(critic, reference, evaluation, walk).items():
+            print(f"| {name} | " + " | ".join(f"{value:.3f}" for value in scores.as_dict().values()) + " |")
+        print("\n| η (Definition 2) | agreement | recall | false shields |\n|---|---|---|---|")
+        print("\n".join(eta_rows(critic, reference, evaluation)))
+    return 0
