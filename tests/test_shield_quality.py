@@ -75,9 +75,11 @@ def test_the_reference_scores_itself_perfectly_and_the_trivial_predictors_as_doc
 def test_the_learned_shield_script_prints_every_predictors_scores(capsys: pytest.CaptureFixture[str]) -> None:
     from sppo_sb3.experiments import learned_shield
 
-    assert learned_shield.main(["--steps", "400", "--gradient-steps", "100", "--seeds", "1"]) == 0
+    argv = ["--warmup-steps", "300", "--steps", "400", "--gradient-steps", "100", "--model-steps", "100", "--seeds", "1"]
+    assert learned_shield.main(argv) == 0
     out = capsys.readouterr().out
-    for row in ("| learned |", "| Q̄ ≡ 0 |", "| distance alone |", *(f"| {eta} |" for eta in learned_shield.ETAS)):
+    rows = ("| learned model, warm-up data |", "| critic, warm-up data |", "| critic, held-action walk |", "| Q̄ ≡ 0 |")
+    for row in (*rows, "| distance alone |", *(f"| {eta} |" for eta in learned_shield.ETAS)):
         assert row in out
     walk = learned_shield.held_action_walk(300, 0, 20, 1.0, PointCircleShieldingRule())
     np.testing.assert_array_equal(walk.actions, PointCircleShieldingRule().backup_action(walk.obs))  # all backup

@@ -3,7 +3,8 @@ wrapper."""
 
 from sppo_sb3.shield.base import ShieldDecision, ShieldFailure, ShieldingRule, in_shielding_set
 from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule
-from sppo_sb3.shield.learned import LearnedCostCriticRule
+from sppo_sb3.shield.learned import LearnedCostCriticRule, RefinableRule
+from sppo_sb3.shield.learned_model import LearnedDynamicsRule
 from sppo_sb3.shield.mjmodel import ConstraintSteps, MujocoLayout, StateConstraint
 from sppo_sb3.shield.mujoco import MujocoShieldingRule
 from sppo_sb3.shield.persistence import ShieldRuleLoadError
@@ -25,9 +26,11 @@ __all__ = [
     "ConstraintSteps",
     "HalfCheetahHeightShieldingRule",
     "LearnedCostCriticRule",
+    "LearnedDynamicsRule",
     "MujocoLayout",
     "MujocoShieldingRule",
     "PointCircleShieldingRule",
+    "RefinableRule",
     "ShieldDecision",
     "ShieldFailure",
     "ShieldRuleLoadError",

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import math
+from abc import abstractmethod
 from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, Literal
 
@@ -28,7 +29,7 @@ OBS_EPSILON = 1e-8
 INITIAL_LOGIT = math.log(1e-3 / (1.0 - 1e-3))
 
 
-def _bounds_scaler(space: gym.spaces.Box) -> tuple[np.ndarray, np.ndarray]:
+def bounds_scaler(space: gym.spaces.Box) -> tuple[np.ndarray, np.ndarray]:
     """Centre and half-width mapping ``space`` onto ``[-1, 1]`` per dimension (identity where a bound is infinite)."""
     low, high = space.low.astype(np.float64).ravel(), space.high.astype(np.float64).ravel()
     finite = np.isfinite(low) & np.isfinite(high) & (high > low)
@@ -52,7 +53,102 @@ def definition2_step_costs(shaped_costs: np.ndarray, violations: np.ndarray, gam
     return np.where(np.asarray(violations) > 0, gamma, gamma * (1.0 - gamma) * shaped_costs)
 
 
-class LearnedCostCriticRule(ShieldingRule):
+class RefinableRule(ShieldingRule):
+    """A rule that learns from the real transitions of ``B`` (Alg. 1 line 12) with a known backup ``ζ``.
+
+    What its learners share: the spaces, the user's backup, ``γ``, the observations' running statistics, the checks of
+    a batch's shapes and the minibatch sampling. ``SPPO(refine_shield=True)`` calls :meth:`refine` on a minibatch of
+    ``B`` once per TOPO update.
+
+    :param observation_space: the env's flat Box observation space; the rule reads raw observations.
+    :param action_space: the env's Box action space.
+    :param backup_policy: the known backup ``ζ``: ``(B, obs_dim)`` observations → ``(B, act_dim)`` actions in env units.
+    :param gamma: discount of ``Q̄``.
+    :param eta: advantage threshold ``η >= 0``.
+    :param penalty: absorbing reward ``R̃ <= 0`` of eq. 7.
+    :param seed: seeds the minibatch sampling (``None``: not seeded).
+    """
+
+    def __init__(
+        self,
+        observation_space: gym.spaces.Space,
+        action_space: gym.spaces.Space,
+        backup_policy: BackupPolicy,
+        gamma: float,
+        eta: float,
+        penalty: float,
+        seed: int | None,
+    ) -> None:
+        super().__init__(eta=eta, penalty=penalty)
+        if not isinstance(observation_space, gym.spaces.Box):
+            raise TypeError(f"{type(self).__name__} needs a flat Box observation space, got {observation_space}.")
+        if not isinstance(action_space, gym.spaces.Box):
+            raise TypeError(f"Shielding rules act on Box action spaces, got {action_space}.")
+        if not callable(backup_policy):
+            raise TypeError(
+                f"backup_policy must be a callable obs (B, obs_dim) -> actions (B, act_dim), got {backup_policy!r}"
+            )
+        if not 0.0 < gamma < 1.0:
+            raise ValueError(f"gamma must be in (0, 1), got {gamma}.")
+        self.observation_space = observation_space
+        self.action_space = action_space
+        self.backup_policy = backup_policy
+        self.gamma = float(gamma)
+        self.obs_dim = int(np.prod(observation_space.shape))
+        self.act_dim = int(np.prod(action_space.shape))
+        self.obs_rms = RunningMeanStd(shape=(self.obs_dim,))
+        self._act_centre, self._act_half = bounds_scaler(action_space)
+        self._rng = np.random.default_rng(seed)
+
+    def flat_pairs(self, obs: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(B, obs_dim)`` and ``(B, act_dim)`` float64 arrays of a batch, or a clear error for another task's."""
+        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
+        actions = np.asarray(actions, dtype=np.float64).reshape(len(actions), -1)
+        if obs.shape[1] != self.obs_dim or actions.shape[1] != self.act_dim or len(obs) != len(actions):
+            raise ValueError(
+                f"{type(self).__name__} was built for observations of size {self.obs_dim} and actions of size "
+                f"{self.act_dim}, got a batch of {obs.shape} and {actions.shape}."
+            )
+        return obs, actions
+
+    def backup_action(self, obs: np.ndarray) -> np.ndarray:
+        """The user's backup ``ζ(s)`` for a batch, as a float64 ``(B, act_dim)`` array (checked by ``check_action_space``)."""
+        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
+        return np.asarray(self.backup_policy(obs), dtype=np.float64)
+
+    def scaled_inputs(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """``[s, a]`` of a checked batch: ``s`` standardised by :attr:`obs_rms`, ``a`` rescaled to ``[-1, 1]``."""
+        obs = (obs - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + OBS_EPSILON)
+        return np.concatenate([obs, (actions - self._act_centre) / self._act_half], axis=1)
+
+    def minibatch(self, n: int, batch_size: int) -> np.ndarray:
+        """Indices of a minibatch of ``batch_size`` of ``n`` transitions, without replacement (all of them if fewer)."""
+        return self._rng.choice(n, size=batch_size, replace=False) if n > batch_size else np.arange(n)
+
+    @abstractmethod
+    def refine(
+        self,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        shaped_costs: np.ndarray,
+        violations: np.ndarray,
+        next_obs: np.ndarray,
+        terminations: np.ndarray,
+        batch_size: int,
+    ) -> float:
+        """One learning step on a minibatch of real transitions of ``B`` (Alg. 1 line 12); returns its loss.
+
+        :param obs: ``(N, obs_dim)`` raw observations ``s``.
+        :param actions: ``(N, act_dim)`` executed actions in env units.
+        :param shaped_costs: ``(N,)`` ``ĉ`` of eq. 18 (``info["shaped_cost"]``).
+        :param violations: ``(N,)`` the violation indicator ``c`` (``info["cost"]``).
+        :param next_obs: ``(N, obs_dim)`` raw next observations ``s'``.
+        :param terminations: ``(N,)`` real terminations (not time-limit truncations).
+        :param batch_size: minibatch size.
+        """
+
+
+class LearnedCostCriticRule(RefinableRule):
     """Shielding rule ``G = (Q̄, ζ, Ā, η, I)`` with a known backup ``ζ`` and an MLP cost critic ``Q̄(s, a)``.
 
     ``Q̄`` is fitted by the backup's Bellman targets on real transitions ``(s, a, ĉ, s', done)`` of the buffer ``B``:
@@ -117,32 +213,13 @@ class LearnedCostCriticRule(ShieldingRule):
         device: th.device | str = "auto",
         seed: int | None = None,
     ) -> None:
-        super().__init__(eta=eta, penalty=penalty)
-        if not isinstance(observation_space, gym.spaces.Box):
-            raise TypeError(f"LearnedCostCriticRule needs a flat Box observation space, got {observation_space}.")
-        if not isinstance(action_space, gym.spaces.Box):
-            raise TypeError(f"Shielding rules act on Box action spaces, got {action_space}.")
-        if not callable(backup_policy):
-            raise TypeError(
-                f"backup_policy must be a callable obs (B, obs_dim) -> actions (B, act_dim), got {backup_policy!r}"
-            )
-        if not 0.0 < gamma < 1.0:
-            raise ValueError(f"gamma must be in (0, 1), got {gamma}.")
+        super().__init__(observation_space, action_space, backup_policy, gamma, eta, penalty, seed)
         if not 0.0 < tau <= 1.0:
             raise ValueError(f"tau must be in (0, 1], got {tau}.")
-        self.observation_space = observation_space
-        self.action_space = action_space
-        self.backup_policy = backup_policy
-        self.gamma = float(gamma)
         self.tau = float(tau)
         self.net_arch = tuple(int(n) for n in net_arch)
         self.lr = float(lr)
         self.device = get_device(device)
-        self.obs_dim = int(np.prod(observation_space.shape))
-        self.act_dim = int(np.prod(action_space.shape))
-        self.obs_rms = RunningMeanStd(shape=(self.obs_dim,))
-        self._act_centre, self._act_half = _bounds_scaler(action_space)
-        self._rng = np.random.default_rng(seed)
 
         if seed is None:
             self.critic = self._build_critic()
@@ -169,28 +246,15 @@ class LearnedCostCriticRule(ShieldingRule):
 
     # ----------------------------------------------------------------------------------------------- evaluation
     def _inputs(self, obs: np.ndarray, actions: np.ndarray) -> th.Tensor:
-        """Critic input ``[s, a]``: ``s`` standardised by :attr:`obs_rms`, ``a`` rescaled to ``[-1, 1]``."""
-        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
-        actions = np.asarray(actions, dtype=np.float64).reshape(len(actions), -1)
-        if obs.shape[1] != self.obs_dim or actions.shape[1] != self.act_dim:
-            raise ValueError(
-                f"LearnedCostCriticRule was built for observations of size {self.obs_dim} and actions of size "
-                f"{self.act_dim}, got {obs.shape[1]} and {actions.shape[1]}."
-            )
-        obs = (obs - self.obs_rms.mean) / np.sqrt(self.obs_rms.var + OBS_EPSILON)
-        actions = (actions - self._act_centre) / self._act_half
-        return th.as_tensor(np.concatenate([obs, actions], axis=1), dtype=th.float32, device=self.device)
+        """Critic input :meth:`scaled_inputs` as a float32 tensor."""
+        obs, actions = self.flat_pairs(obs, actions)
+        return th.as_tensor(self.scaled_inputs(obs, actions), dtype=th.float32, device=self.device)
 
     def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """``Q̄(s, a) = γ·σ(f(s, a)) ∈ [0, γ]`` of the critic for a batch: ``(B, obs_dim)``, ``(B, act_dim)`` → ``(B,)``."""
         with th.no_grad():
             logits = self.critic(self._inputs(obs, actions)).squeeze(-1).cpu().numpy().astype(np.float64)
         return self.gamma / (1.0 + np.exp(-logits))  # in float64: a float32 γ·σ would round above γ
-
-    def backup_action(self, obs: np.ndarray) -> np.ndarray:
-        """The user's backup ``ζ(s)`` for a batch, as a float64 ``(B, act_dim)`` array (checked by ``check_action_space``)."""
-        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
-        return np.asarray(self.backup_policy(obs), dtype=np.float64)
 
     def advantage(self, obs: np.ndarray, actions: np.ndarray, backup: np.ndarray | None = None) -> np.ndarray:
         """``Ā(s, a) = Q̄(s, a) - Q̄(s, ζ(s))``.
@@ -251,7 +315,7 @@ class LearnedCostCriticRule(ShieldingRule):
 
         losses = []
         for _ in range(gradient_steps):
-            idx = self._rng.choice(n, size=batch_size, replace=False) if n > batch_size else np.arange(n)
+            idx = self.minibatch(n, batch_size)
             with th.no_grad():
                 next_q = self.gamma * th.sigmoid(self.critic_target(self._inputs(next_obs[idx], next_backup[idx])).squeeze(-1))
                 target = (costs_t[idx] + self.gamma * (1.0 - dones_t[idx]) * next_q).clamp(max=self.gamma)
@@ -265,6 +329,21 @@ class LearnedCostCriticRule(ShieldingRule):
                     target_param.mul_(1.0 - self.tau).add_(param, alpha=self.tau)
                 losses.append(float(((self.gamma * th.sigmoid(logits) - target) ** 2).mean()))
         return float(np.mean(losses)) if losses else 0.0
+
+    def refine(
+        self,
+        obs: np.ndarray,
+        actions: np.ndarray,
+        shaped_costs: np.ndarray,
+        violations: np.ndarray,
+        next_obs: np.ndarray,
+        terminations: np.ndarray,
+        batch_size: int,
+    ) -> float:
+        """One :meth:`update` step on Definition 2's scale (:func:`definition2_step_costs`), a violation ending the roll."""
+        costs = definition2_step_costs(shaped_costs, violations, self.gamma)
+        dones = np.maximum(np.asarray(terminations, dtype=np.float64), np.asarray(violations) > 0)
+        return self.update(obs, actions, costs, next_obs, dones, 1, batch_size)
 
     # ----------------------------------------------------------------------------------------------- persistence
     def state_dict(self) -> dict[str, Any]:

@@ -24,7 +24,7 @@ from sppo_sb3.common.costs import costs_from_infos
 from sppo_sb3.common.keys import INTERVENED_KEY, N_UPDATES_LOG_KEY, PROPOSED_ACTION_KEY
 from sppo_sb3.common.safety import SafetyMetrics
 from sppo_sb3.shield.base import ShieldingRule
-from sppo_sb3.shield.learned import LearnedCostCriticRule, definition2_step_costs
+from sppo_sb3.shield.learned import RefinableRule
 from sppo_sb3.shield.persistence import ShieldedLoadMixin
 from sppo_sb3.shield.registry import resolve_shielding_rule
 from sppo_sb3.sppo.buffers import AbsorbingMode, ShieldedReplayBuffer
@@ -88,12 +88,12 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         interventions and real terminations, not time-limit truncations), and plan with it: eq. 10 adds no reward and
         no value after a predicted absorbing step. ``False`` (default) is TD-MPC's model and the paper's, which plans
         as if no episode ended; ``docs/results.md`` (the absorbing MDP) has the benchmark that chose the default.
-    :param refine_shield: Alg. 1 line 12, ``G ← UpdateShieldingRule(B)``: fit the rule's ``Q̄`` on the real
-        transitions of ``B`` during :meth:`train` (as many minibatches of ``batch_size`` as TOPO updates), with the
-        backup's targets on Definition 2's scale (:func:`~sppo_sb3.shield.learned.definition2_step_costs`). Needs a
-        learnable rule, :class:`~sppo_sb3.shield.LearnedCostCriticRule`, and an env reporting ``info["shaped_cost"]``.
-        For tasks without a model to roll ``Q̄`` on: only the backup policy ``ζ`` has to be known. The rule starts
-        knowing nothing (``Q̄ ≡ 0`` shields nothing), so it protects only once it has seen the task's costs.
+    :param refine_shield: Alg. 1 line 12, ``G ← UpdateShieldingRule(B)``: the rule learns from the real transitions
+        of ``B`` during :meth:`train` (as many minibatches of ``batch_size`` as TOPO updates). Needs a learnable rule
+        (:class:`~sppo_sb3.shield.RefinableRule`): :class:`~sppo_sb3.shield.LearnedDynamicsRule` (a learned model,
+        the task's constraint known) or :class:`~sppo_sb3.shield.LearnedCostCriticRule` (a cost critic, fitted on
+        ``info["shaped_cost"]``). For tasks without a model to roll ``Q̄`` on: the backup policy ``ζ`` has to be known.
+        A rule that has learned nothing shields nothing, so it protects only once it has seen the task.
     :param refine_backup_fraction: with ``refine_shield``, the share of warm-up steps (before ``learning_starts``)
         that execute the backup ``ζ(s)`` instead of a uniform action. Every target of the learned ``Q̄`` reads it at
         ``(s', ζ(s'))``, and the backup's actions (e.g. full braking, a corner of the action box) are ones uniform
@@ -230,11 +230,11 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         self._convert_train_freq()
         if self.shield_rule is None:
             self.shield_rule = resolve_shielding_rule(self.shield, self.env, required=False)
-        if self.refine_shield and not isinstance(self.shield_rule, LearnedCostCriticRule):
+        if self.refine_shield and not isinstance(self.shield_rule, RefinableRule):
             raise ValueError(
-                f"refine_shield=True fits the shielding rule's Q̄ on the replay buffer, which needs a learnable rule "
-                f"(sppo_sb3.shield.LearnedCostCriticRule with your backup policy), got {self.shield_rule!r}. "
-                "Pass shield=LearnedCostCriticRule(...) or refine_shield=False."
+                f"refine_shield=True fits the shielding rule on the replay buffer, which needs a learnable rule "
+                f"(sppo_sb3.shield.LearnedCostCriticRule or LearnedDynamicsRule with your backup policy), got "
+                f"{self.shield_rule!r}. Pass shield=LearnedDynamicsRule(...) or refine_shield=False."
             )
         self._setup_compiled()
         if self.safety_metrics is None:
@@ -408,16 +408,18 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         self.planner.mark_stale()
 
     def _refine_shield(self, gradient_steps: int, batch_size: int) -> None:
-        """Alg. 1 line 12: fit the learned ``Q̄`` on real transitions of ``B`` with the backup's targets."""
+        """Alg. 1 line 12: the learned rule learns from real transitions of ``B`` (:meth:`RefinableRule.refine`)."""
         rule = self.shield_rule
-        assert isinstance(rule, LearnedCostCriticRule)
+        assert isinstance(rule, RefinableRule)
         losses = []
         for _ in range(gradient_steps):
             t = self.replay_buffer.sample_cost_transitions(batch_size)
-            costs = definition2_step_costs(t.shaped_costs, t.violations, rule.discount)
-            done = np.maximum(t.terminations, t.violations > 0)
             actions = self._env_actions(t.actions)  # rules flatten whatever the Box shape
-            losses.append(rule.update(t.observations, actions, costs, t.next_observations, done, 1, batch_size))
+            losses.append(
+                rule.refine(
+                    t.observations, actions, t.shaped_costs, t.violations, t.next_observations, t.terminations, batch_size
+                )
+            )
         self.logger.record("train/shield_loss", float(np.mean(losses)))
 
     def _record_train_stats(self) -> None:
