@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -16,6 +17,7 @@ from sppo_sb3 import SPPO
 from sppo_sb3.envs.point_circle import PointParams, point_distance_to_unsafe, point_is_unsafe
 from sppo_sb3.experiments.learned_shield import held_action_walk
 from sppo_sb3.shield import LearnedDynamicsRule, PointCircleShieldingRule, quality
+from sppo_sb3.shield.registry import LEARNED_POINT_RULE
 
 PARAMS = PointParams()
 REFERENCE = PointCircleShieldingRule()
@@ -93,14 +95,20 @@ def _spaces() -> tuple[gym.spaces.Space, gym.spaces.Space]:
     return env.observation_space, env.action_space
 
 
-def test_sppo_refines_a_learned_model_on_its_buffer() -> None:
-    rule = point_dynamics_rule()
+def test_sppo_refines_a_learned_model_on_its_buffer_and_keeps_it_on_save(tmp_path: Path) -> None:
+    """By name (the registered Point variant), fitted on B while SPPO trains, saved and loaded with the model."""
     model = SPPO(
-        "TOLDPolicy", "SafePointCircle-v0", shield=rule, refine_shield=True, learning_starts=300, policy_kwargs=TINIEST_TOLD,
-        horizon=2, compile=False, seed=0,
+        "TOLDPolicy", "SafePointCircle-v0", shield=LEARNED_POINT_RULE, refine_shield=True, learning_starts=300,
+        policy_kwargs=TINIEST_TOLD, horizon=2, compile=False, seed=0,
     )  # fmt: skip
+    rule = model.shield_rule
+    assert isinstance(rule, LearnedDynamicsRule) and rule.alpha == REFERENCE.alpha
     obs, actions = point_pairs(200, 13)
     before = rule.predict_next(obs, actions)
     model.learn(400)
     assert not np.array_equal(rule.predict_next(obs, actions), before)
     assert "train/shield_loss" in model.logger.name_to_value
+    model.save(tmp_path / "sppo")
+    loaded = SPPO.load(tmp_path / "sppo")
+    assert isinstance(loaded.shield_rule, LearnedDynamicsRule)
+    np.testing.assert_array_equal(loaded.shield_rule.cost_value(obs, actions), rule.cost_value(obs, actions))

@@ -14,19 +14,44 @@ from typing import Any
 import gymnasium as gym
 from stable_baselines3.common.vec_env import VecEnv
 
+from sppo_sb3.envs.point_circle import SafePointCircleEnv, point_distance_to_unsafe, point_is_unsafe
 from sppo_sb3.envs.velocity import VELOCITY_TASKS
 from sppo_sb3.shield.base import ShieldingRule
 from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule
+from sppo_sb3.shield.learned_model import LearnedDynamicsRule
 from sppo_sb3.shield.point import PointCircleShieldingRule, paper_point_rule
 from sppo_sb3.shield.velocity import velocity_shielding_rule
 
 #: a variant of a task's rule, named ``"<env id>:<variant>"``: pass the name as ``shield`` to train with it
 PAPER_POINT_RULE = "SafePointCircle-v0:paper"
+#: the Point Robot's rule without its model: the dynamics learned, for [learned]'s measurements (``refine_shield=True``)
+LEARNED_POINT_RULE = "SafePointCircle-v0:learned"
+
+
+def learned_point_rule(**kwargs: Any) -> LearnedDynamicsRule:
+    """The Point rule's backup, constraint and band on a learned model of the dynamics; ``kwargs`` override.
+
+    What a user without the Point Robot's equations would build: a :class:`LearnedDynamicsRule` that ``SPPO`` fits on
+    its buffer (``refine_shield=True``), rolled for long enough to stop from full speed.
+    """
+    env, model_rule = SafePointCircleEnv(), PointCircleShieldingRule()
+    settings = {"alpha": model_rule.alpha, "horizon": model_rule.horizon + 10, **kwargs}
+    return LearnedDynamicsRule(
+        env.observation_space,
+        env.action_space,
+        model_rule.backup_action,
+        lambda obs: point_is_unsafe(obs, env.params),
+        lambda obs: point_distance_to_unsafe(obs, env.params),
+        **settings,
+    )
+
+
 #: the rule of each task (``shield="auto"``), by gymnasium id, and named variants: a class or factory, called for
 #: every model
 SHIELDING_RULES: dict[str, Callable[..., ShieldingRule]] = {
     "SafePointCircle-v0": PointCircleShieldingRule,
     PAPER_POINT_RULE: paper_point_rule,  # the paper's and SAILR's: brake both axes, band 0.5 (Table I's first rows)
+    LEARNED_POINT_RULE: learned_point_rule,  # no model: the dynamics learned from B (refine_shield=True)
     "SafeHalfCheetahHeight-v1": HalfCheetahHeightShieldingRule,
     **{task.env_id: functools.partial(velocity_shielding_rule, task) for task in VELOCITY_TASKS},
 }
