@@ -11,7 +11,7 @@ import copy
 import math
 from abc import abstractmethod
 from collections.abc import Callable, Sequence
-from typing import Any, ClassVar, Literal
+from typing import Any, ClassVar, Literal, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -51,6 +51,38 @@ def definition2_step_costs(shaped_costs: np.ndarray, violations: np.ndarray, gam
     """
     shaped_costs = np.asarray(shaped_costs, dtype=np.float64)
     return np.where(np.asarray(violations) > 0, gamma, gamma * (1.0 - gamma) * shaped_costs)
+
+
+def mlp(in_dim: int, widths: Sequence[int], out_dim: int, activation: type[nn.Module], device: th.device) -> nn.Sequential:
+    """``Linear → activation`` per hidden width, then a zero-initialised ``Linear`` head (its bias set by the caller)."""
+    layers: list[nn.Module] = []
+    for width in widths:
+        layers += [nn.Linear(in_dim, width), activation()]
+        in_dim = width
+    head = nn.Linear(in_dim, out_dim)
+    nn.init.zeros_(head.weight)
+    nn.init.zeros_(head.bias)
+    return nn.Sequential(*layers, head).to(device)
+
+
+class CostTransitions(NamedTuple):
+    """Real transitions of ``B`` for fitting a shielding rule's ``Q̄`` (Alg. 1 line 12), as float64 numpy arrays.
+
+    :param observations: ``(B, obs_dim)`` raw states ``s``.
+    :param actions: ``(B, A)`` executed actions (a rule's :meth:`~RefinableRule.refine` takes them in env units;
+        SPPO's buffer stores them in [-1, 1] and rescales them).
+    :param shaped_costs: ``(B,)`` ``ĉ`` of eq. 18 (``info["shaped_cost"]``).
+    :param violations: ``(B,)`` the violation indicator ``c`` (``info["cost"]``).
+    :param next_observations: ``(B, obs_dim)`` raw next states ``s'``.
+    :param terminations: ``(B,)`` 1 where the episode terminated (not a time-limit truncation).
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    shaped_costs: np.ndarray
+    violations: np.ndarray
+    next_observations: np.ndarray
+    terminations: np.ndarray
 
 
 class RefinableRule(ShieldingRule):
@@ -126,26 +158,9 @@ class RefinableRule(ShieldingRule):
         return self._rng.choice(n, size=batch_size, replace=False) if n > batch_size else np.arange(n)
 
     @abstractmethod
-    def refine(
-        self,
-        obs: np.ndarray,
-        actions: np.ndarray,
-        shaped_costs: np.ndarray,
-        violations: np.ndarray,
-        next_obs: np.ndarray,
-        terminations: np.ndarray,
-        batch_size: int,
-    ) -> float:
-        """One learning step on a minibatch of real transitions of ``B`` (Alg. 1 line 12); returns its loss.
-
-        :param obs: ``(N, obs_dim)`` raw observations ``s``.
-        :param actions: ``(N, act_dim)`` executed actions in env units.
-        :param shaped_costs: ``(N,)`` ``ĉ`` of eq. 18 (``info["shaped_cost"]``).
-        :param violations: ``(N,)`` the violation indicator ``c`` (``info["cost"]``).
-        :param next_obs: ``(N, obs_dim)`` raw next observations ``s'``.
-        :param terminations: ``(N,)`` real terminations (not time-limit truncations).
-        :param batch_size: minibatch size.
-        """
+    def refine(self, transitions: CostTransitions, batch_size: int) -> float:
+        """One learning step on a minibatch of real transitions of ``B`` (Alg. 1 line 12, actions in env units);
+        returns its loss."""
 
 
 class LearnedCostCriticRule(RefinableRule):
@@ -232,17 +247,13 @@ class LearnedCostCriticRule(RefinableRule):
         self.optimizer = th.optim.Adam(self.critic.parameters(), lr=self.lr)
 
     def _build_critic(self) -> nn.Sequential:
-        layers: list[nn.Module] = []
-        in_dim = self.obs_dim + self.act_dim
-        for width in self.net_arch:
-            layers += [nn.Linear(in_dim, width), nn.ReLU()]
-            in_dim = width
-        head = nn.Linear(in_dim, 1)
+        critic = mlp(self.obs_dim + self.act_dim, self.net_arch, 1, nn.ReLU, self.device)
         # a constant output before learning (as TD-MPC's zero-initialised Q heads): Ā ≡ 0, nothing is shielded yet, and
         # Q̄ starts near 0, so no initial bias has to be unlearnt at the slow rate γ per backup
-        nn.init.zeros_(head.weight)
+        head = critic[-1]
+        assert isinstance(head, nn.Linear)
         nn.init.constant_(head.bias, INITIAL_LOGIT)
-        return nn.Sequential(*layers, head).to(self.device)
+        return critic
 
     # ----------------------------------------------------------------------------------------------- evaluation
     def _inputs(self, obs: np.ndarray, actions: np.ndarray) -> th.Tensor:
@@ -330,20 +341,12 @@ class LearnedCostCriticRule(RefinableRule):
                 losses.append(float(((self.gamma * th.sigmoid(logits) - target) ** 2).mean()))
         return float(np.mean(losses)) if losses else 0.0
 
-    def refine(
-        self,
-        obs: np.ndarray,
-        actions: np.ndarray,
-        shaped_costs: np.ndarray,
-        violations: np.ndarray,
-        next_obs: np.ndarray,
-        terminations: np.ndarray,
-        batch_size: int,
-    ) -> float:
+    def refine(self, transitions: CostTransitions, batch_size: int) -> float:
         """One :meth:`update` step on Definition 2's scale (:func:`definition2_step_costs`), a violation ending the roll."""
-        costs = definition2_step_costs(shaped_costs, violations, self.gamma)
-        dones = np.maximum(np.asarray(terminations, dtype=np.float64), np.asarray(violations) > 0)
-        return self.update(obs, actions, costs, next_obs, dones, 1, batch_size)
+        t = transitions
+        costs = definition2_step_costs(t.shaped_costs, t.violations, self.gamma)
+        dones = np.maximum(np.asarray(t.terminations, dtype=np.float64), np.asarray(t.violations) > 0)
+        return self.update(t.observations, t.actions, costs, t.next_observations, dones, 1, batch_size)
 
     # ----------------------------------------------------------------------------------------------- persistence
     def state_dict(self) -> dict[str, Any]:

@@ -22,7 +22,7 @@ from torch import nn
 
 from sppo_sb3.common.costs import shaped_cost
 from sppo_sb3.shield.base import advantage_from_values
-from sppo_sb3.shield.learned import OBS_EPSILON, BackupPolicy, RefinableRule
+from sppo_sb3.shield.learned import OBS_EPSILON, BackupPolicy, CostTransitions, RefinableRule, mlp
 
 StateFunction = Callable[[np.ndarray], np.ndarray]
 
@@ -94,15 +94,8 @@ class LearnedDynamicsRule(RefinableRule):
         self.optimizer = th.optim.Adam(self.model.parameters(), lr=self.lr)
 
     def _build_model(self) -> nn.Sequential:
-        layers: list[nn.Module] = []
-        in_dim = self.obs_dim + self.act_dim
-        for width in self.net_arch:
-            layers += [nn.Linear(in_dim, width), nn.ELU()]
-            in_dim = width
-        head = nn.Linear(in_dim, self.obs_dim)
-        nn.init.zeros_(head.weight)  # before learning: no change predicted, i.e. ŝ' = s + the mean change (0)
-        nn.init.zeros_(head.bias)
-        return nn.Sequential(*layers, head).to(self.device)
+        """Before learning it predicts no change (a zero head), so ``ŝ' = s``: nothing new is shielded."""
+        return mlp(self.obs_dim + self.act_dim, self.net_arch, self.obs_dim, nn.ELU, self.device)
 
     # ----------------------------------------------------------------------------------------------- the model
     def _inputs(self, obs: np.ndarray, actions: np.ndarray) -> th.Tensor:
@@ -175,18 +168,9 @@ class LearnedDynamicsRule(RefinableRule):
             losses.append(loss.item())
         return float(np.mean(losses)) if losses else 0.0
 
-    def refine(
-        self,
-        obs: np.ndarray,
-        actions: np.ndarray,
-        shaped_costs: np.ndarray,
-        violations: np.ndarray,
-        next_obs: np.ndarray,
-        terminations: np.ndarray,
-        batch_size: int,
-    ) -> float:
+    def refine(self, transitions: CostTransitions, batch_size: int) -> float:
         """One gradient step of :meth:`update` on a minibatch of ``B`` (the costs are the user's functions': unused)."""
-        return self.update(obs, actions, next_obs, 1, batch_size)
+        return self.update(transitions.observations, transitions.actions, transitions.next_observations, 1, batch_size)
 
     # ----------------------------------------------------------------------------------------------- persistence
     def state_dict(self) -> dict[str, Any]:

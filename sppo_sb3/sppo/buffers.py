@@ -18,6 +18,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY, PROPOSED_ACTION_KEY, SHAPED_COST_KEY
+from sppo_sb3.shield.learned import CostTransitions
 
 AbsorbingMode = Literal["terminate", "restart"]
 
@@ -41,25 +42,6 @@ class SequenceSamples(NamedTuple):
     terminals: th.Tensor
     mask: th.Tensor
     consistency_mask: th.Tensor
-
-
-class CostTransitions(NamedTuple):
-    """Real transitions of ``B`` for fitting a shielding rule's ``Q̄`` (Alg. 1 line 12), as float64 numpy arrays.
-
-    :param observations: ``(B, obs_dim)`` raw states ``s``.
-    :param actions: ``(B, A)`` executed actions in [-1, 1] (the caller rescales them to env units).
-    :param shaped_costs: ``(B,)`` ``ĉ`` of eq. 18 (``info["shaped_cost"]``).
-    :param violations: ``(B,)`` the violation indicator ``c`` (``info["cost"]``).
-    :param next_observations: ``(B, obs_dim)`` raw next states ``s'``.
-    :param terminations: ``(B,)`` 1 where the episode terminated (not a time-limit truncation).
-    """
-
-    observations: np.ndarray
-    actions: np.ndarray
-    shaped_costs: np.ndarray
-    violations: np.ndarray
-    next_observations: np.ndarray
-    terminations: np.ndarray
 
 
 class ShieldedReplayBuffer(ReplayBuffer):

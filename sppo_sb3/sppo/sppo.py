@@ -414,12 +414,8 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         losses = []
         for _ in range(gradient_steps):
             t = self.replay_buffer.sample_cost_transitions(batch_size)
-            actions = self._env_actions(t.actions)  # rules flatten whatever the Box shape
-            losses.append(
-                rule.refine(
-                    t.observations, actions, t.shaped_costs, t.violations, t.next_observations, t.terminations, batch_size
-                )
-            )
+            env_actions = self._env_actions(t.actions)  # rules flatten whatever the Box shape
+            losses.append(rule.refine(t._replace(actions=env_actions), batch_size))
         self.logger.record("train/shield_loss", float(np.mean(losses)))
 
     def _record_train_stats(self) -> None:
