@@ -4,7 +4,8 @@ Runs, in one process:
 
 - ``replay``: the observations and proposed actions of a real shielded training run on ``--task`` (a MuJoCo task with
   a registered :class:`~sppo_sb3.shield.MujocoShieldingRule`: ``SafeHalfCheetahHeight-v1`` by default, or a velocity
-  task such as ``sppo_sb3/SafetyHopperVelocity-v1``; SPPO at the small configuration of ``hyperparams/small/sppo.yml``,
+  task such as ``sppo_sb3/SafetyHopperVelocity-v1``; SPPO at the small configuration of ``hyperparams/small/sppo.yml``
+  (``hyperparams/velocity/sppo.yml``, the same, on the velocity tasks),
   or SAILR at ``hyperparams/sailr.yml``; recorded once into ``--states``, then reused) are replayed through the
   task's rule, certified (the default) and full
   (``certify=False``, every quantity solved on every step), with 1 env (the run's steps in order) and with 8 envs
@@ -38,6 +39,7 @@ import numpy as np
 import yaml
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
+from sppo_sb3.envs.velocity import VELOCITY_TASKS
 from sppo_sb3.shield import SHIELDING_RULES, MujocoShieldingRule, rule_parameters_of
 from sppo_sb3.shield.base import ShieldDecision, ShieldingRule
 from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule, rollout_heights_python
@@ -47,6 +49,9 @@ from sppo_sb3.zoo import eval_kwargs_strings, eval_yml_string
 ENV_ID = "SafeHalfCheetahHeight-v1"
 ROOT = Path(__file__).resolve().parents[1]
 HYPERPARAMS = {"sppo": ROOT / "hyperparams" / "small" / "sppo.yml", "sailr": ROOT / "hyperparams" / "sailr.yml"}
+#: the velocity tasks' settings: the [velbench] grid's (the same small TOLD for SPPO)
+VELOCITY_HYPERPARAMS = ROOT / "hyperparams" / "velocity"
+VELOCITY_IDS = frozenset(task.env_id for task in VELOCITY_TASKS)
 
 
 # ---------------------------------------------------------------------------------------------------- recording
@@ -83,7 +88,8 @@ class RecordingRule(ShieldingRule):
 
 def algo_kwargs(algo: str, task: str) -> dict[str, Any]:
     """The yml entry of ``algo`` for the task, as constructor keywords (zoo-only keys dropped)."""
-    kwargs = eval_kwargs_strings(dict(yaml.safe_load(HYPERPARAMS[algo].read_text())[task]))
+    path = VELOCITY_HYPERPARAMS / f"{algo}.yml" if task in VELOCITY_IDS else HYPERPARAMS[algo]
+    kwargs = eval_kwargs_strings(dict(yaml.safe_load(path.read_text())[task]))
     if isinstance(kwargs.get("policy_kwargs"), str):  # rl-zoo3 evaluates this one itself
         kwargs["policy_kwargs"] = eval_yml_string(kwargs["policy_kwargs"])
     for key in ("n_timesteps", "n_envs", "normalize", "shield"):

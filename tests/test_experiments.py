@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+import yaml
 from tiny_hyperparams import tiny_pdo_yml
 
 from sppo_sb3.experiments import benchmark, configs, display, grid, layout, plot, stats, tables
@@ -175,6 +176,27 @@ def test_default_grid_holds_the_papers_five_algorithms() -> None:
     assert not ALGORITHMS["saclag"].paper and "saclag" not in grid.OUR_ALGOS
     config = configs.resolve_config("saclag", TASK, Path(__file__).resolve().parents[1] / "hyperparams")
     assert config is not None and f"{TASK}:" in config  # hyperparams/saclag.yml: a grid may name it
+
+
+def test_velocity_preset_runs_its_grid_from_its_own_folder(capsys: pytest.CaptureFixture[str]) -> None:
+    """``--velocity``: SPPO, SACLag, PDO, CPO and SAC on four velocity tasks, configured by hyperparams/velocity at
+    1e5 env steps, each final policy deployed for 10 episodes (a user's ``--zoo-args`` come after, and win)."""
+    args = benchmark.parse_args(["--velocity", "--zoo-args", "--deployment-episodes 3"])
+    assert args.hyperparams_dir == configs.REPO_HYPERPARAMS_DIR / "velocity"
+    assert args.zoo_args == "--deployment-episodes 10 --deployment-episodes 3"
+    algos, tasks, seeds = benchmark.grid_axes(args)
+    assert (tuple(algos), tuple(tasks), seeds) == (grid.VELOCITY_ALGOS, grid.VELOCITY_TASKS, [0, 1, 2])
+    assert len(tasks) == 4 and all(task.startswith("sppo_sb3/Safety") for task in tasks)
+    specs = grid.build_grid(algos, tasks, seeds[:1], Path("out"), args.hyperparams_dir)
+    for spec in specs:  # every pair has an entry in the folder, at the grid's budget
+        entry = yaml.safe_load(spec.config_text or "")[spec.task]
+        assert entry["n_timesteps"] == 1e5, spec.label
+        if spec.algo in ("saclag", "pdo", "cpo"):
+            assert entry["cost_limit"] == 25.0, spec.label  # OmniSafe's velocity benchmark's limit, per episode
+    assert {spec.algo for spec in specs if "shield" in yaml.safe_load(spec.config_text or "")[spec.task]} == {"sppo"}
+    with pytest.raises(SystemExit):
+        benchmark.parse_args(["--velocity", "--fig7"])
+    assert "two grids" in capsys.readouterr().err
 
 
 def test_scripts_are_thin_command_lines_over_the_module(tmp_path: Path) -> None:

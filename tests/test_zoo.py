@@ -151,6 +151,30 @@ def test_train_cli_prints_safety_summary(tmp_path: Path) -> None:
     assert evaluations["costs"].shape == evaluations["results"].shape == (2, 2)
 
 
+def test_train_cli_deploys_a_zoo_algorithm_that_keeps_no_safety_metrics(tmp_path: Path) -> None:
+    """rl-zoo3's own SAC keeps no safety metrics: its training costs are monitor.csv's, and its final policy's deployment
+    is still measured and saved, so a grid's table has the unconstrained reference's deployed cost too."""
+    from sppo_sb3.experiments.spec import RunSpec
+    from sppo_sb3.experiments.summary import model_safety_summary, read_monitor_curve, summarize
+
+    cmd = [sys.executable, "-m", "sppo_sb3.train", "--algo", "sac", "--env", ENV, "-n", "128", "-f", str(tmp_path)]
+    cmd += ["--seed", "0", "--eval-freq", "-1", "--num-threads", "1", "--device", "cpu", *SHORT_EPISODES]
+    cmd += ["--hyperparams", "learning_starts:64", "policy_kwargs:dict(net_arch=[8])", "--deployment-episodes", "2"]
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    result = subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env, cwd=tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "SAC keeps no safety metrics" in result.stdout and "eval_unshielded/" in result.stdout
+
+    safety = model_safety_summary(tmp_path)
+    assert safety is not None and set(safety) == {"num_timesteps", "deployment"} and safety["num_timesteps"] == 128
+    curve = read_monitor_curve(tmp_path)
+    summary = summarize(RunSpec(ENV, "sac", 0, str(tmp_path)), curve, safety, 1.0, cmd)
+    assert summary["safety_source"] == "monitor" and summary["episodes"] == len(curve) >= 2
+    assert summary["cumulative_violations"] == int(curve["violations"].sum())
+    assert summary["eval_unshielded_return"] == safety["deployment"]["eval_unshielded"]["mean_reward"]
+    assert 0.0 <= summary["eval_unshielded_safe_rate"] <= 100.0
+
+
 def _yml_file_entries() -> list[tuple[Path, str]]:
     """Every entry of ``hyperparams/*.yml`` and of its variant folders (``small/``, ``point_sweep/NAME/``, ...; ``dmc/``
     has test_dmc.py)."""
@@ -181,7 +205,9 @@ def test_yml_entry_constructs(config: Path, env_id: str, tmp_path: Path) -> None
     algo = config.stem
     manager_cls = zoo.install()
     manager = manager_cls(argparse.Namespace(), algo, env_id, str(tmp_path), eval_freq=-1, config=str(config), verbose=0)
-    cls = zoo.algo_classes()[algo]
+    from rl_zoo3.utils import ALGOS as ZOO_ALGOS
+
+    cls = zoo.algo_classes().get(algo) or ZOO_ALGOS[algo]  # the package's, or one of rl-zoo3's (velocity/sac.yml)
     accepted = set(inspect.signature(cls.__init__).parameters)
     unprocessed, _ = manager.read_hyperparameters()
     hyperparams, *_ = manager._preprocess_hyperparams(dict(unprocessed))

@@ -64,6 +64,12 @@ def parse_args(argv: Sequence[str] | None = None, default_hyperparams_dir: Path 
         f'--fig7 dmc: on the paper\'s dm_control tasks {" ".join(grid.FIG7_DMC)} (pip install "sppo_sb3[dmc]")'
     )
     parser.add_argument("--fig7", nargs="?", const="mujoco", default=None, choices=tuple(grid.FIG7_SETS), help=fig7)
+    velocity = (
+        f"Safety-Gymnasium's velocity tasks: {' '.join(grid.VELOCITY_ALGOS)} on {' '.join(grid.VELOCITY_TASKS)},\n"
+        f"hyperparams/{grid.VELOCITY_HYPERPARAMS}/ (1e5 env steps), each final policy deployed for "
+        f"{grid.VELOCITY_DEPLOYMENT_EPISODES} episodes"
+    )
+    parser.add_argument("--velocity", action="store_true", help=velocity)
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel local runs (default: cores)")
     parser.add_argument("--ray-address", default=None, help="run as Ray tasks on this cluster (auto, ray://host:port)")
     parser.add_argument("--ray-cpus-per-run", type=float, default=1.0, help="CPUs Ray reserves per run (default: 1)")
@@ -82,21 +88,29 @@ def parse_args(argv: Sequence[str] | None = None, default_hyperparams_dir: Path 
         "and its wall clock on --workers cores; then exit",
     )
     args = parser.parse_args(argv)
+    if args.velocity and args.fig7:
+        parser.error("--velocity and --fig7 are two grids: give one")
     if args.hyperparams_dir is None:
-        args.hyperparams_dir = default_hyperparams_dir / grid.FIG7_SETS[args.fig7 or "mujoco"][1]
+        subfolder = grid.VELOCITY_HYPERPARAMS if args.velocity else grid.FIG7_SETS[args.fig7 or "mujoco"][1]
+        args.hyperparams_dir = default_hyperparams_dir / subfolder
+    if args.velocity:  # before the user's own --zoo-args, which win
+        args.zoo_args = f"--deployment-episodes {grid.VELOCITY_DEPLOYMENT_EPISODES} {args.zoo_args}".strip()
     return args
 
 
 def grid_axes(args: argparse.Namespace) -> tuple[list[str], list[str], list[int]]:
-    """The algorithms, tasks and seeds the options ask for (``--quick`` and ``--fig7`` presets applied).
+    """The algorithms, tasks and seeds the options ask for (``--quick``, ``--fig7`` and ``--velocity`` presets applied).
 
     :param args: :func:`parse_args`'s result.
     :raises SystemExit: an option out of range.
     """
-    algos = args.algos or list(grid.FIG7_ALGOS if args.fig7 else grid.OUR_ALGOS)
-    tasks = args.tasks or list(
-        grid.FIG7_SETS[args.fig7][0] if args.fig7 else grid.QUICK_TASKS if args.quick else grid.SAFE_TASKS
-    )
+    if args.velocity:
+        default_algos, default_tasks = grid.VELOCITY_ALGOS, grid.VELOCITY_TASKS
+    elif args.fig7:
+        default_algos, default_tasks = grid.FIG7_ALGOS, grid.FIG7_SETS[args.fig7][0]
+    else:
+        default_algos, default_tasks = grid.OUR_ALGOS, grid.QUICK_TASKS if args.quick else grid.SAFE_TASKS
+    algos, tasks = args.algos or list(default_algos), args.tasks or list(default_tasks)
     n_seeds = args.seeds if args.seeds is not None else (grid.QUICK_SEEDS if args.quick else grid.DEFAULT_SEEDS)
     if n_seeds < 1 or args.workers < 1 or args.last_n < 1:
         raise SystemExit("--seeds, --workers and --last-n must be at least 1")

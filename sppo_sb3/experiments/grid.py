@@ -7,6 +7,7 @@ from pathlib import Path
 
 from sppo_sb3.algorithms import PAPER_ALGORITHMS
 from sppo_sb3.envs.dmc import FIG7_DMC_TASKS, dmc_id
+from sppo_sb3.envs.velocity import ANT, HALF_CHEETAH, HOPPER, WALKER2D
 from sppo_sb3.experiments import layout
 from sppo_sb3.experiments.configs import resolve_config
 from sppo_sb3.experiments.spec import RunSpec, check_variant, run_name
@@ -23,6 +24,13 @@ FIG7_TASKS: tuple[str, ...] = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5")
 FIG7_DMC: tuple[str, ...] = tuple(dmc_id(task) for task in FIG7_DMC_TASKS)
 #: the task sets of ``--fig7 [SET]`` and the hyperparameter subfolder each one reads ("": the folder itself)
 FIG7_SETS: dict[str, tuple[tuple[str, ...], str]] = {"mujoco": (FIG7_TASKS, ""), "dmc": (FIG7_DMC, "dmc")}
+#: ``--velocity``: Safety-Gymnasium's velocity tasks against OmniSafe's published tables: SPPO, the constrained
+#: baselines (OmniSafe's strongest there, SACLag, and PDO and CPO) and SB3's SAC as the unconstrained reference
+VELOCITY_ALGOS: tuple[str, ...] = ("sppo", "saclag", "pdo", "cpo", "sac")
+VELOCITY_TASKS: tuple[str, ...] = tuple(task.env_id for task in (HALF_CHEETAH, HOPPER, WALKER2D, ANT))
+#: its hyperparameter subfolder (budget 1e5 env steps) and the episodes of each final deployment, as OmniSafe evaluates
+VELOCITY_HYPERPARAMS = "velocity"
+VELOCITY_DEPLOYMENT_EPISODES = 10
 #: ``--quick``: a few minutes on a laptop (on-policy algorithms still collect one full rollout of ``n_steps``)
 QUICK_STEPS: dict[str, int] = {"SafePointCircle-v0": 2048, "SafeHalfCheetahHeight-v1": 256}
 QUICK_DEFAULT_STEPS = 2048

@@ -127,7 +127,7 @@ def summarize(
     }
     if episodes and float(curve["time"].iloc[-1]) > 0:  # without start-up: env creation to the last episode's end
         summary["train_steps_per_s"] = float(curve["timesteps"].iloc[-1] / curve["time"].iloc[-1])
-    if safety:
+    if safety and "cumulative_violations" in safety:  # the model's own metrics (rl-zoo3's algorithms keep none)
         summary.update(
             episodes=int(safety.get("episodes", episodes)),
             cumulative_violations=int(safety.get("cumulative_violations", summary["cumulative_violations"])),
@@ -135,6 +135,7 @@ def summarize(
             cumulative_interventions=int(safety.get("cumulative_interventions", 0)),
             safety_source="safety_metrics",
         )
+    if safety:
         if "eval_mean_reward" in safety:
             summary["eval_mean_reward"] = float(safety["eval_mean_reward"])
         summary.update(deployment_summary(safety.get("deployment", {})))

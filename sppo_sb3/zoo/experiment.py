@@ -96,20 +96,24 @@ class SafeExperimentManager(ExperimentManager):
         """Print the model's safety summary and write it to ``safety_summary.json`` in the run folder.
 
         The summary holds the paper's training-safety metrics (Section V-B-2: cumulative constraint violations,
-        safety rate) with the episodes' return and the shield's interventions.
+        safety rate) with the episodes' return and the shield's interventions, and the final policy's deployments with
+        and without the shield. A model that keeps no safety metrics (rl-zoo3's own algorithms, whose training costs
+        are in ``monitor.csv``) gets the deployments only.
 
         :param model: the trained model.
         """
         metrics = getattr(model, "safety_metrics", None)
         print(f"========== Safety summary: {self.algo} on {self.env_name.gym_id} ==========")
+        summary: dict[str, Any] = {}
         if metrics is None:
             print(f"{type(model).__name__} keeps no safety metrics (see the episode_cost columns of monitor.csv)")
-            return
-        self.safety_summary = summary = metrics.summary()
-        print(metrics.format_summary())
+        else:
+            self.safety_summary = metrics.summary()
+            summary.update(self.safety_summary)
+            print(metrics.format_summary())
         deployment = self.evaluate_deployments(model)
         if deployment:
-            summary = {**summary, "deployment": deployment}  # type: ignore[dict-item]
+            summary["deployment"] = deployment
         for callback in self.callbacks:
             if isinstance(callback, CostEvalCallback) and callback.evaluations_timesteps:
                 print(
