@@ -6,10 +6,13 @@ import re
 
 from sppo_sb3.algorithms import ALGORITHMS, DISPLAY_ORDER, ZOO_BASELINES
 from sppo_sb3.envs.dmc import action_repeat
+from sppo_sb3.envs.velocity import VELOCITY_TASKS
 from sppo_sb3.experiments.spec import split_run_name
 
 #: the paper's names of its constrained tasks
 TASK_NAMES: dict[str, str] = {"SafePointCircle-v0": "Point Robot", "SafeHalfCheetahHeight-v1": "Half-Cheetah"}
+#: Safety-Gymnasium's velocity tasks by their robot
+VELOCITY_TASK_NAMES: dict[str, str] = {task.env_id: f"{task.robot} velocity" for task in VELOCITY_TASKS}
 
 
 def display_name(name: str) -> str:
@@ -45,11 +48,13 @@ def algo_sort_key(name: str) -> tuple[int, str, str]:
 
 
 def task_title(task: str) -> str:
-    """``Point Robot (SafePointCircle-v0)`` for the paper's tasks, the id otherwise.
+    """``Point Robot (SafePointCircle-v0)`` for the paper's tasks, ``Hopper velocity (sppo_sb3/...)`` for the velocity
+    tasks, the id otherwise.
 
     :param task: gymnasium id.
     """
-    return f"{TASK_NAMES[task]} ({task})" if task in TASK_NAMES else task
+    name = TASK_NAMES.get(task) or VELOCITY_TASK_NAMES.get(task)
+    return f"{name} ({task})" if name else task
 
 
 def task_sort_key(task: str) -> tuple[bool, str]:

@@ -131,3 +131,40 @@ def plot_violation_bars(summaries: pd.DataFrame, tasks: Sequence[str], path: Pat
     fig.tight_layout()
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
+
+
+def plot_efficiency(runs: pd.DataFrame, task: str, target: float, path: Path, dpi: int = 100) -> None:
+    """Two panels for ``task``: the env steps at which each algorithm's training return first reached ``target``, and
+    the training cost it paid until then. Bar: mean over the seeds that reached it; dots: those seeds; an algorithm
+    none of whose seeds reached it is marked "not reached" (its cost of the whole run is drawn hollow instead).
+
+    :param runs: :func:`~sppo_sb3.experiments.velocity.seed_efficiency`'s rows.
+    :param task: the task (the title).
+    :param target: the return.
+    :param path: the PNG written.
+    :param dpi: resolution.
+    """
+    plt = _pyplot()
+    fig, (steps_ax, cost_ax) = plt.subplots(1, 2, figsize=(10.0, 3.6))
+    algos = list(dict.fromkeys(runs["algo"]))
+    for x, algo in enumerate(algos):
+        group = runs[runs["algo"] == algo]
+        hit = group.dropna(subset=["steps"])
+        color = algo_color(algo)
+        if hit.empty:
+            steps_ax.annotate("not reached", (x, 0), ha="center", va="bottom", fontsize=8, rotation=90)
+            cost_ax.bar(x, float(group["cost_total"].mean()), fill=False, edgecolor=color, hatch="//")
+            continue
+        for ax, key in ((steps_ax, "steps"), (cost_ax, "cost")):
+            values = hit[key].astype(float).to_numpy()
+            ax.bar(x, float(values.mean()), color=color, alpha=0.75)
+            ax.scatter(np.full(values.size, x) + np.linspace(-0.15, 0.15, values.size), values, color="k", s=10, zorder=3)
+    for ax, label in ((steps_ax, "env steps to reach it"), (cost_ax, "training cost paid until then")):
+        ax.set_xticks(range(len(algos)), [display_name(a) for a in algos], fontsize=8)
+        ax.set_ylabel(label)
+        ax.grid(axis="y", alpha=0.3)
+        ax.set_ylim(bottom=0)
+    fig.suptitle(f"{task_title(task)}: training return ≥ {target:.0f} (mean of the last 10 episodes)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)

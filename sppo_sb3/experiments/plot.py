@@ -13,9 +13,17 @@ from pathlib import Path
 import pandas as pd
 
 from sppo_sb3.experiments.display import task_sort_key
-from sppo_sb3.experiments.figures import plot_curves, plot_violation_bars
+from sppo_sb3.experiments.figures import plot_curves, plot_efficiency, plot_violation_bars
 from sppo_sb3.experiments.stats import aggregate, load_results
 from sppo_sb3.experiments.tables import returns_table_markdown, safety_tables_markdown
+from sppo_sb3.experiments.velocity import (
+    TARGET_TASK,
+    efficiency_markdown,
+    efficiency_table,
+    seed_efficiency,
+    target_return,
+    velocity_tables_markdown,
+)
 
 DESCRIPTION = "Figures and tables of the paper's comparison from a ``scripts/benchmark.py`` output folder."
 
@@ -31,6 +39,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--tasks", nargs="+", default=None, help="tasks to show (default: all found)")
     parser.add_argument("--algos", nargs="+", default=None, help="algorithms to show (default: all found)")
     parser.add_argument("--fig7", action="store_true", help="Fig. 7 mode: return curves and a returns table only")
+    parser.add_argument(
+        "--velocity",
+        action="store_true",
+        help="velocity-benchmark mode: curves of return and cumulative cost, tables beside OmniSafe's published rows, "
+        "and the env steps to 80%% of OmniSafe's SACLag return on HalfCheetah",
+    )
     parser.add_argument("--smooth", type=int, default=5, help="rolling mean over this many episodes (default: 5)")
     parser.add_argument("--points", type=int, default=100, help="env-step grid of the curves' mean and CI (default: 100)")
     parser.add_argument("--dpi", type=int, default=100, help="PNG resolution (default: 100)")
@@ -49,7 +63,9 @@ def write_figures(
     """
     tasks = sorted(summaries["task"].unique(), key=task_sort_key)
     table = aggregate(summaries)
-    if args.fig7:
+    if args.velocity:
+        written = write_velocity_figures(args, table, curves, tasks, out)
+    elif args.fig7:
         plot_curves(curves, tasks, "return", "episode return", out / "fig7_curves.png", args.points, args.smooth, args.dpi)
         (out / "fig7_table.md").write_text(returns_table_markdown(table))
         written = ["fig7_curves.png", "fig7_table.md"]
@@ -63,6 +79,28 @@ def write_figures(
         written = ["learning_curves.png", "cumulative_violations.png", "violations.png", "tables.md"]
     table.to_csv(out / "aggregate.csv", index=False)
     return [*written, "aggregate.csv"]
+
+
+def write_velocity_figures(
+    args: argparse.Namespace,
+    table: pd.DataFrame,
+    curves: dict[tuple[str, str], list[pd.DataFrame]],
+    tasks: list[str],
+    out: Path,
+) -> list[str]:
+    """The velocity benchmark's figures and tables (:mod:`sppo_sb3.experiments.velocity`); returns the files' names."""
+    with_cost = {key: [curve.assign(cumulative_cost=curve["cost"].cumsum()) for curve in runs] for key, runs in curves.items()}
+    plot_curves(with_cost, tasks, "return", "episode return", out / "learning_curves.png", args.points, args.smooth, args.dpi)
+    plot_curves(with_cost, tasks, "cumulative_cost", "cumulative training cost", out / "cumulative_cost.png", args.points)
+    (out / "velocity_tables.md").write_text(velocity_tables_markdown(table))
+    written = ["learning_curves.png", "cumulative_cost.png", "velocity_tables.md"]
+    if TARGET_TASK in tasks:
+        target = target_return()
+        runs = seed_efficiency(curves, TARGET_TASK, target)
+        plot_efficiency(runs, TARGET_TASK, target, out / "sample_efficiency.png", args.dpi)
+        (out / "sample_efficiency.md").write_text(efficiency_markdown(efficiency_table(runs), TARGET_TASK, target))
+        written += ["sample_efficiency.png", "sample_efficiency.md"]
+    return written
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -39,11 +39,12 @@ AGGREGATED_KEYS: tuple[str, ...] = (
     "eval_unshielded_return",
     "eval_unshielded_violations",
     "eval_unshielded_safe_rate",
+    "wall_clock_s",
 )
 #: the figures that also get a 95% bootstrap confidence interval of their mean over seeds, and an IQM: all but counts
 #: and throughputs
 INTERVAL_KEYS: tuple[str, ...] = tuple(
-    key for key in AGGREGATED_KEYS if key not in ("episodes", "steps", "steps_per_s", "train_steps_per_s")
+    key for key in AGGREGATED_KEYS if key not in ("episodes", "steps", "steps_per_s", "train_steps_per_s", "wall_clock_s")
 )
 #: bootstrap resamples of every confidence interval (aggregates and every point of a curve)
 BOOTSTRAP_REPS = 2000

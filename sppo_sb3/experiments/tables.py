@@ -53,7 +53,7 @@ def _with_interval(row: pd.Series, estimate: str, interval: str, digits: int) ->
     return f"{value:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
 
 
-def _estimate(row: pd.Series, key: str, digits: int = 2) -> str:
+def estimate_cell(row: pd.Series, key: str, digits: int = 2) -> str:
     """``mean [low, high]`` of ``key`` over seeds, ``mean ± std`` without an interval, ``–`` without a mean."""
     cell = _with_interval(row, f"{key}_mean", f"{key}_ci", digits)
     if cell is not None:
@@ -89,7 +89,7 @@ def _safety_row(row: pd.Series, paper: dict[str, tuple[str, float, float]], iqm_
     algo = str(row["algo"])
     interventions = row.get("cumulative_interventions_mean", float("nan"))
     cells = [display_name(algo), order_of_magnitude(row["cumulative_violations_mean"])]
-    cells += [_estimate(row, key, digits) for key, digits, _ in SAFETY_ESTIMATES]
+    cells += [estimate_cell(row, key, digits) for key, digits, _ in SAFETY_ESTIMATES]
     cells += [
         f"{row['episodes_mean']:.0f}",
         "–" if not np.isfinite(interventions) else f"{interventions:.0f}",
@@ -155,7 +155,7 @@ def returns_table_markdown(table: pd.DataFrame) -> str:
         scale = env_steps_per_step(str(row["task"]))
         line = (
             f"| {row['task']} | {display_name(str(row['algo']))} | {row['seeds']} | {row['steps_mean'] * scale:.0f} | "
-            f"{_estimate(row, 'return_last_n')} | {_throughput(row, scale)} |"
+            f"{estimate_cell(row, 'return_last_n')} | {_throughput(row, scale)} |"
         )
         lines.append(line + (f" {_iqm(row, 'return_last_n')} |" if iqm else ""))
     return "\n".join(lines) + "\n"

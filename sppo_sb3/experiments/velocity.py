@@ -1,0 +1,225 @@
+"""The velocity benchmark's tables: our runs beside OmniSafe's published rows, and the env steps to a return.
+
+OmniSafe (PKU-Alignment/omnisafe, ``benchmarks/{off,on}-policy/README.md``, Table 2) publishes, per Safety-Gymnasium
+velocity task, the final policy's episode reward and episode cost (cost limit 25), mean ± std over 5 seeds, after 1e6
+env steps (off-policy; Humanoid 3e6) or 1e7 (on-policy). ``docs/benchmarks/omnisafe_velocity.md`` has every row with
+its lines; :data:`OMNISAFE_VELOCITY` holds those of the algorithms this package runs. Our rows are
+:func:`~sppo_sb3.experiments.stats.aggregate`'s; on these tasks a step costs 0 or 1, so a run's violations are its
+cost.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from sppo_sb3.envs.velocity import ANT, HALF_CHEETAH, HOPPER, SWIMMER, WALKER2D
+from sppo_sb3.experiments.display import algo_sort_key, display_name, task_title
+from sppo_sb3.experiments.tables import INTERVAL_LEGEND, estimate_cell
+
+#: the OmniSafe commit the published rows were read at
+OMNISAFE_COMMIT = "15603dd7a654a991d0a4648216b69d60b81a6366"
+
+
+@dataclass(frozen=True)
+class PublishedRow:
+    """One of OmniSafe's published results.
+
+    :param algorithm: OmniSafe's name of the algorithm.
+    :param counterpart: the rl-zoo3 name of the algorithm of this package it compares with.
+    :param budget: env steps of training.
+    :param reward: the final policy's episode reward, mean and std over seeds.
+    :param cost: its episode cost, mean and std over seeds.
+    """
+
+    algorithm: str
+    counterpart: str
+    budget: float
+    reward: tuple[float, float]
+    cost: tuple[float, float]
+
+
+#: the published algorithms of :data:`OMNISAFE_VELOCITY`: OmniSafe's name, the package's counterpart, the budget
+PUBLISHED_ALGORITHMS: tuple[tuple[str, str, float], ...] = (
+    ("SAC", "sac", 1e6),
+    ("SACLag", "saclag", 1e6),
+    ("PPOLag", "pdo", 1e7),
+    ("CPO", "cpo", 1e7),
+)
+
+
+def _task_rows(*values: tuple[float, float, float, float]) -> tuple[PublishedRow, ...]:
+    """A task's rows of :data:`PUBLISHED_ALGORITHMS`, from ``(reward, reward std, cost, cost std)`` each."""
+    return tuple(
+        PublishedRow(name, ours, budget, (reward, reward_std), (cost, cost_std))
+        for (name, ours, budget), (reward, reward_std, cost, cost_std) in zip(PUBLISHED_ALGORITHMS, values, strict=True)
+    )
+
+
+#: OmniSafe's Table 2 rows of :data:`PUBLISHED_ALGORITHMS` on the velocity tasks
+OMNISAFE_VELOCITY: dict[str, tuple[PublishedRow, ...]] = {
+    HALF_CHEETAH.env_id: _task_rows(
+        (11488.86, 513.09, 981.93, 0.33),
+        (2833.72, 3.62, 0.00, 0.00),
+        (2946.15, 306.35, 3.44, 4.77),
+        (2786.48, 173.45, 4.70, 6.72),
+    ),
+    HOPPER.env_id: _task_rows(
+        (3537.70, 32.23, 975.23, 2.39),
+        (963.49, 291.64, 20.23, 28.47),
+        (961.92, 752.87, 13.96, 19.33),
+        (1713.71, 18.26, 13.40, 5.82),
+    ),
+    WALKER2D.env_id: _task_rows(
+        (4419.29, 232.06, 877.70, 8.95),
+        (2676.47, 300.43, 30.67, 32.30),
+        (2982.27, 681.55, 13.49, 14.55),
+        (2074.76, 962.45, 21.90, 9.41),
+    ),
+    ANT.env_id: _task_rows(
+        (5456.31, 156.04, 943.10, 47.51),
+        (1897.32, 1213.74, 5.73, 7.83),
+        (3261.87, 80.00, 12.05, 6.57),
+        (3098.54, 78.90, 14.12, 3.41),
+    ),
+    SWIMMER.env_id: _task_rows(
+        (46.44, 1.23, 40.97, 0.47), (11.03, 11.17, 22.70, 32.10), (64.74, 17.67, 28.02, 4.09), (65.30, 43.25, 18.22, 8.01)
+    ),
+}
+#: the return the sample-efficiency measure asks for: this share of OmniSafe's SACLag on HalfCheetah (2833.72 at 1e6)
+TARGET_FRACTION = 0.8
+TARGET_TASK = HALF_CHEETAH.env_id
+#: training episodes averaged before the return is compared with the target (the tables' "last 10")
+TARGET_WINDOW = 10
+
+#: the columns of a velocity table: (summary key, digits, title)
+VELOCITY_ESTIMATES: tuple[tuple[str, int, str], ...] = (
+    ("return_last_n", 1, "Return, last 10 training episodes"),
+    ("eval_unshielded_return", 1, "Deployed without shield: return"),
+    ("eval_unshielded_violations", 2, "Deployed without shield: cost per episode"),
+    ("cumulative_violations", 0, "Training cost (sum over training)"),
+    ("safety_rate", 1, "Training episodes with cost 0 (%)"),
+)
+
+
+def target_return(task: str = TARGET_TASK) -> float:
+    """:data:`TARGET_FRACTION` of OmniSafe's published SACLag return on ``task``."""
+    saclag = next(row for row in OMNISAFE_VELOCITY[task] if row.algorithm == "SACLag")
+    return TARGET_FRACTION * saclag.reward[0]
+
+
+def _our_row(row: pd.Series) -> str:
+    steps = row.get("steps_mean", float("nan"))
+    interventions = row.get("cumulative_interventions_mean", float("nan"))
+    wall = row.get("wall_clock_s_mean", float("nan"))
+    cells = [display_name(str(row["algo"])), f"{steps:.0e}" if np.isfinite(steps) else "–"]
+    cells += [estimate_cell(row, key, digits) for key, digits, _ in VELOCITY_ESTIMATES]
+    cells += [
+        "–" if not np.isfinite(interventions) else f"{interventions:.0f}",
+        "–" if not np.isfinite(wall) else f"{wall / 60:.0f}",
+    ]
+    return "| " + " | ".join(cells) + " |"
+
+
+def _published_row(row: PublishedRow) -> str:
+    reward, cost = (f"{mean:.2f} ± {std:.2f}" for mean, std in (row.reward, row.cost))
+    return f"| OmniSafe {row.algorithm} | {row.budget:.0e} | – | {reward} | {cost} | – | – | – | – |"
+
+
+def velocity_tables_markdown(table: pd.DataFrame) -> str:
+    """One table per velocity task: our algorithms (mean [95% CI] over seeds), then OmniSafe's published rows.
+
+    :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
+    """
+    lines = [
+        "<!-- written by scripts/plot_results.py --velocity -->",
+        "Ours: the training runs' last 10 episodes; the final policy deployed alone for 10 deterministic episodes (its",
+        "cost per episode is OmniSafe's measure); the cost paid over training (a step above the threshold costs 1) and",
+        "the share of training episodes that paid none; shield interventions; wall clock per run. OmniSafe: the final",
+        f"policy's episode reward and cost, mean ± std over 5 seeds, at its own budget (commit {OMNISAFE_COMMIT[:8]}).",
+        INTERVAL_LEGEND,
+        "",
+    ]
+    header = "| Method | Env steps |" + "".join(f" {title} |" for _, _, title in VELOCITY_ESTIMATES)
+    header += " Shield interventions | Wall clock (min) |"
+    for task, group in table.groupby("task", sort=True):
+        lines += [f"### {task_title(str(task))}", "", header, "|" + "---|" * header.count(" |")]
+        lines += [_our_row(row) for _, row in group.iterrows()]
+        lines += [_published_row(row) for row in OMNISAFE_VELOCITY.get(str(task), ())]
+        lines.append("")
+    return "\n".join(lines)
+
+
+def steps_to_return(curve: pd.DataFrame, target: float, window: int = TARGET_WINDOW) -> dict[str, float]:
+    """When a run's training return first reaches ``target``: the mean of its last ``window`` episodes, episode by
+    episode (fewer at the start), against ``target``.
+
+    :param curve: the run's learning curve (:data:`~sppo_sb3.experiments.layout.CURVE_COLUMNS`).
+    :param target: the return.
+    :param window: episodes averaged.
+    :return: ``steps`` and ``seconds`` (monitor clock) at the end of that episode and ``cost``, the training cost paid
+        until then (all NaN if the run never reaches it), and ``cost_total``, the run's whole training cost.
+    """
+    returns = curve["return"].astype(float).rolling(window, min_periods=1).mean().to_numpy()
+    cost = curve["cost"].astype(float).cumsum().to_numpy()
+    reached = np.flatnonzero(returns >= target)
+    found = {"steps": float("nan"), "seconds": float("nan"), "cost": float("nan"), "cost_total": float(cost[-1])}
+    if reached.size:
+        first = int(reached[0])
+        found.update(steps=float(curve["timesteps"].iloc[first]), seconds=float(curve["time"].iloc[first]), cost=cost[first])
+    return found
+
+
+def seed_efficiency(curves: dict[tuple[str, str], list[pd.DataFrame]], task: str, target: float) -> pd.DataFrame:
+    """:func:`steps_to_return` of every run on ``task``, one row per run (``algo`` and its figures).
+
+    :param curves: the runs' curves by ``(task, algo)``.
+    :param task: the task.
+    :param target: the return.
+    """
+    rows = [
+        {"algo": algo, **steps_to_return(curve, target)}
+        for algo in sorted((a for t, a in curves if t == task), key=algo_sort_key)
+        for curve in curves[(task, algo)]
+    ]
+    return pd.DataFrame(rows, columns=["algo", "steps", "seconds", "cost", "cost_total"])
+
+
+def efficiency_table(runs: pd.DataFrame) -> pd.DataFrame:
+    """Per algorithm: how many seeds reached the target and, over those, the mean env steps, wall clock and training
+    cost until then; and the mean training cost of the whole run.
+
+    :param runs: :func:`seed_efficiency`'s rows.
+    """
+    rows = []
+    for algo, group in runs.groupby("algo", sort=False):
+        hit = group.dropna(subset=["steps"])
+        means = {key: float(hit[key].mean()) if len(hit) else float("nan") for key in ("steps", "seconds", "cost")}
+        rows.append(
+            {"algo": algo, "seeds": len(group), "reached": len(hit), **means, "cost_total": group["cost_total"].mean()}
+        )
+    return pd.DataFrame(rows)
+
+
+def efficiency_markdown(efficiency: pd.DataFrame, task: str, target: float) -> str:
+    """:func:`efficiency_table` in markdown."""
+    lines = [
+        f"### {task_title(task)}: env steps to a return of {target:.0f} "
+        f"({TARGET_FRACTION:.0%} of OmniSafe's SACLag at 1e6 env steps)",
+        "",
+        f"The first episode at which the mean of the last {TARGET_WINDOW} training episodes reaches it; means over the "
+        "seeds that reached it.",
+        "",
+        "| Method | Seeds reaching it | Env steps | Wall clock (min) | Training cost until then | Training cost, whole run |",
+        "|---|---|---|---|---|---|",
+    ]
+    for _, row in efficiency.iterrows():
+        steps, minutes, cost = (
+            "–" if not np.isfinite(row[key]) else f"{row[key] / scale:.{digits}f}"
+            for key, scale, digits in (("steps", 1, 0), ("seconds", 60, 1), ("cost", 1, 0))
+        )
+        cells = [display_name(str(row["algo"])), f"{row['reached']} of {row['seeds']}", steps, minutes, cost]
+        lines.append("| " + " | ".join([*cells, f"{row['cost_total']:.0f}"]) + " |")
+    return "\n".join(lines) + "\n"

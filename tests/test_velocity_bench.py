@@ -1,0 +1,104 @@
+"""The velocity benchmark's read-out: steps to a return, our rows beside OmniSafe's, and ``plot_results --velocity``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from sppo_sb3.experiments import layout, plot, stats
+from sppo_sb3.experiments.velocity import (
+    OMNISAFE_VELOCITY,
+    TARGET_TASK,
+    efficiency_table,
+    seed_efficiency,
+    steps_to_return,
+    target_return,
+    velocity_tables_markdown,
+)
+
+EPISODE = 1000
+
+
+def _curve(returns: list[float], costs: list[float]) -> pd.DataFrame:
+    """A learning curve of 1000-step episodes, one second each."""
+    n = len(returns)
+    return pd.DataFrame(
+        {
+            "timesteps": EPISODE * np.arange(1, n + 1),
+            "episode": np.arange(1, n + 1),
+            "return": returns,
+            "length": EPISODE,
+            "cost": costs,
+            "violations": costs,
+            "cumulative_violations": np.cumsum(costs),
+            "time": np.arange(1, n + 1, dtype=float),
+        }
+    )
+
+
+def test_steps_to_return_reads_the_first_episode_whose_window_reaches_it() -> None:
+    curve = _curve([0.0, 10.0, 20.0, 30.0, 40.0], [1.0, 2.0, 0.0, 3.0, 0.0])
+    # rolling means over 2 episodes: 0, 5, 15, 25, 35; the first at 20 or more is the 4th episode
+    assert steps_to_return(curve, 20.0, window=2) == {"steps": 4000.0, "seconds": 4.0, "cost": 6.0, "cost_total": 6.0}
+    never = steps_to_return(curve, 36.0, window=2)
+    assert np.isnan(never["steps"]) and np.isnan(never["cost"]) and never["cost_total"] == 6.0
+
+
+def test_efficiency_table_averages_over_the_seeds_that_reached_it() -> None:
+    curves = {
+        (TARGET_TASK, "sac"): [_curve([0.0, 3000.0], [5.0, 900.0]), _curve([0.0, 1000.0], [0.0, 700.0])],
+        (TARGET_TASK, "sppo"): [_curve([0.0, 100.0], [0.0, 0.0])],
+    }
+    target = target_return()
+    assert target == pytest.approx(0.8 * 2833.72)
+    runs = seed_efficiency(curves, TARGET_TASK, target)
+    table = efficiency_table(runs).set_index("algo")
+    # SAC's first seed: the mean of its 2 episodes is 1500 < target, so not reached at 10 episodes' window either
+    assert table.loc["sac", "reached"] == 0 and table.loc["sac", "cost_total"] == pytest.approx(802.5)
+    single = efficiency_table(seed_efficiency({(TARGET_TASK, "sac"): [_curve([3000.0], [4.0])]}, TARGET_TASK, target))
+    assert single.loc[0, "reached"] == 1 and single.loc[0, "steps"] == 1000.0 and single.loc[0, "cost"] == 4.0
+    assert table.loc["sppo", "reached"] == 0 and np.isnan(table.loc["sppo", "steps"])
+
+
+def _write_run(root: Path, algo: str, seed: int, returns: list[float], costs: list[float]) -> None:
+    run_dir = layout.run_dir_for(root, TARGET_TASK, algo, seed)
+    run_dir.mkdir(parents=True)
+    summary = {"task": TARGET_TASK, "algo": algo, "variant": "", "seed": seed, "steps": EPISODE * len(returns)}
+    summary |= {"episodes": len(returns), "return_last_n": float(np.mean(returns[-10:])), "safety_rate": 50.0}
+    summary |= {"cumulative_violations": int(sum(costs)), "wall_clock_s": 600.0, "eval_unshielded_violations": 1.5}
+    summary |= {"eval_unshielded_return": 2500.0, "cumulative_interventions": 7 if algo == "sppo" else None}
+    layout.write_finished(run_dir, summary, _curve(returns, costs).to_csv(index=False))
+
+
+def test_velocity_tables_put_omnisafes_published_rows_beside_ours(tmp_path: Path) -> None:
+    for seed in (0, 1):
+        _write_run(tmp_path, "saclag", seed, [1000.0, 2500.0], [10.0, 0.0])
+        _write_run(tmp_path, "sppo", seed, [500.0, 900.0], [0.0, 0.0])
+    summaries, _ = stats.load_results(tmp_path)
+    markdown = velocity_tables_markdown(stats.aggregate(summaries))
+    lines = markdown.splitlines()
+    ours = next(line for line in lines if line.startswith("| SPPO"))
+    assert ours.startswith(
+        "| SPPO (ours) | 2e+03 | 700.0 [700.0, 700.0] | 2500.0 [2500.0, 2500.0] | 1.50 [1.50, 1.50] | 0 [0, 0] |"
+    )
+    assert ours.endswith("| 7 | 10 |")  # interventions, wall clock in minutes
+    published = [line for line in lines if line.startswith("| OmniSafe")]
+    assert len(published) == len(OMNISAFE_VELOCITY[TARGET_TASK]) == 4
+    assert "| OmniSafe SACLag | 1e+06 | – | 2833.72 ± 3.62 | 0.00 ± 0.00 |" in markdown
+    assert lines.index(ours) < lines.index(published[0])
+
+
+def test_plot_results_velocity_mode_writes_its_figures_and_tables(tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    _write_run(tmp_path, "sac", 0, [1000.0, 3000.0, 3500.0], [0.0, 400.0, 900.0])
+    _write_run(tmp_path, "sppo", 0, [200.0, 400.0, 600.0], [0.0, 0.0, 0.0])
+    out = tmp_path / "figures"
+    assert plot.main([str(tmp_path), "--out", str(out), "--velocity"]) == 0
+    for name in ("learning_curves.png", "cumulative_cost.png", "velocity_tables.md", "sample_efficiency.png"):
+        assert (out / name).is_file(), name
+    efficiency = (out / "sample_efficiency.md").read_text()
+    assert "| SAC | 1 of 1 | 3000 | 0.1 | 1300 | 1300 |" in efficiency  # the window's mean reaches 2267 at episode 3
+    assert "| SPPO (ours) | 0 of 1 | – | – | – | 0 |" in efficiency
