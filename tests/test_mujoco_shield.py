@@ -128,7 +128,8 @@ def test_cheetah_rule_keeps_its_decisions() -> None:
         decision = rule.shield(recorded["obs"][t][None], recorded["actions"][t][None])
         np.testing.assert_array_equal(decision.actions[0], recorded["executed"][t])
         assert decision.intervened[0] == recorded["intervened"][t]
-        np.testing.assert_array_equal(decision.advantage[0], recorded["advantage"][t])
+        # the decision bit for bit; Ā to the last bits only (a numpy release may sum the rollouts' costs in another order)
+        np.testing.assert_allclose(decision.advantage[0], recorded["advantage"][t], rtol=1e-12, atol=1e-15)
     assert recorded["intervened"].any()
 
 
