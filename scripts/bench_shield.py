@@ -49,7 +49,7 @@ from sppo_sb3.zoo import eval_kwargs_strings, eval_yml_string
 ENV_ID = "SafeHalfCheetahHeight-v1"
 ROOT = Path(__file__).resolve().parents[1]
 HYPERPARAMS = {"sppo": ROOT / "hyperparams" / "small" / "sppo.yml", "sailr": ROOT / "hyperparams" / "sailr.yml"}
-#: the velocity tasks' settings: the [velbench] grid's (the same small TOLD for SPPO)
+#: the velocity tasks' settings: the velocity benchmark's (the same small TOLD for SPPO)
 VELOCITY_HYPERPARAMS = ROOT / "hyperparams" / "velocity"
 VELOCITY_IDS = frozenset(task.env_id for task in VELOCITY_TASKS)
 

@@ -28,33 +28,27 @@ class PublishedRow:
     """One of OmniSafe's published results.
 
     :param algorithm: OmniSafe's name of the algorithm.
-    :param counterpart: the rl-zoo3 name of the algorithm of this package it compares with.
     :param budget: env steps of training.
     :param reward: the final policy's episode reward, mean and std over seeds.
     :param cost: its episode cost, mean and std over seeds.
     """
 
     algorithm: str
-    counterpart: str
     budget: float
     reward: tuple[float, float]
     cost: tuple[float, float]
 
 
-#: the published algorithms of :data:`OMNISAFE_VELOCITY`: OmniSafe's name, the package's counterpart, the budget
-PUBLISHED_ALGORITHMS: tuple[tuple[str, str, float], ...] = (
-    ("SAC", "sac", 1e6),
-    ("SACLag", "saclag", 1e6),
-    ("PPOLag", "pdo", 1e7),
-    ("CPO", "cpo", 1e7),
-)
+#: the published algorithms of :data:`OMNISAFE_VELOCITY` and their budgets: SAC, SACLag, CPO, and PPOLag (the
+#: counterpart of this package's PDO)
+PUBLISHED_ALGORITHMS: tuple[tuple[str, float], ...] = (("SAC", 1e6), ("SACLag", 1e6), ("PPOLag", 1e7), ("CPO", 1e7))
 
 
 def _task_rows(*values: tuple[float, float, float, float]) -> tuple[PublishedRow, ...]:
     """A task's rows of :data:`PUBLISHED_ALGORITHMS`, from ``(reward, reward std, cost, cost std)`` each."""
     return tuple(
-        PublishedRow(name, ours, budget, (reward, reward_std), (cost, cost_std))
-        for (name, ours, budget), (reward, reward_std, cost, cost_std) in zip(PUBLISHED_ALGORITHMS, values, strict=True)
+        PublishedRow(name, budget, (reward, reward_std), (cost, cost_std))
+        for (name, budget), (reward, reward_std, cost, cost_std) in zip(PUBLISHED_ALGORITHMS, values, strict=True)
     )
 
 
