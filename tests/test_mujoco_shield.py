@@ -133,10 +133,13 @@ def test_cheetah_rule_keeps_its_decisions() -> None:
     assert recorded["intervened"].any()
 
 
-def test_certified_decisions_equal_the_full_solve() -> None:
-    """On a velocity constraint tight enough for random proposals to meet it, certificates change no decision."""
+@pytest.mark.parametrize("certificate_particles", [4, 11])
+def test_certified_decisions_equal_the_full_solve(certificate_particles: int) -> None:
+    """On a velocity constraint tight enough for random proposals to meet it, certificates change no decision (with
+    the candidates rolled in one chunk and in several)."""
     env_id, constraint = "HalfCheetah-v4", VelocityConstraint(0.3)
-    certified, full = small_rule(env_id, constraint), small_rule(env_id, constraint, certify=False)
+    settings = dict(certificate_particles=certificate_particles)
+    certified, full = small_rule(env_id, constraint, **settings), small_rule(env_id, constraint, certify=False, **settings)
     env = gym.make(env_id)
     env.action_space.seed(0)
     obs, _ = env.reset(seed=0)
@@ -150,6 +153,32 @@ def test_certified_decisions_equal_the_full_solve() -> None:
         obs, *_ = env.step(a.actions[0])
     assert interventions > 0
     assert certified.solve_counts.q_solves < full.solve_counts.q_solves
+
+
+def test_certificates_rolled_in_chunks_are_the_first_of_all_and_the_solve_reuses_them() -> None:
+    """Rolling the certificate candidates a few at a time finds the same first certificate as rolling them all, and a
+    solve given its first particles' costs returns what it returns rolling them itself, bit for bit."""
+    constraint = VelocityConstraint(0.3)
+    rule = small_rule("HalfCheetah-v4", constraint, certificate_particles=11)
+    env = gym.make("HalfCheetah-v4")
+    obs = np.asarray(random_states(env, 40, seed=3))
+    states = rule.layout.states_from_obs(rule.model, obs)
+    actions = np.random.default_rng(0).uniform(-1, 1, (len(obs), rule.model.nu))
+    warm = np.random.default_rng(1).uniform(-1, 1, (len(obs), rule.horizon, rule.model.nu))
+    particles = rule.certificate_candidates(warm)  # W[1:] and the next particles of Q̄(s, a)'s solve
+    all_costs = rule.plan_costs(states, particles, actions)
+    candidates = particles[:, 1:]
+    first, costs = rule.certify_in_chunks(states, candidates, actions)
+    np.testing.assert_array_equal(first, rule.first_certifying(all_costs[:, 1:]))
+    assert 0 < np.mean(first == candidates.shape[1]) < 1 and np.any(first >= 4)  # some certify late, some never
+    rolled = ~np.isnan(costs)
+    np.testing.assert_array_equal(costs[rolled], all_costs[:, 1:][rolled])
+    assert np.all(rolled[first == candidates.shape[1]])  # no certificate: every candidate rolled
+
+    solved = rule.solve(states, warm[:, 1:], actions)
+    reused = rule.solve(states, warm[:, 1:], actions, scored=all_costs[:, :5])
+    for expected, got in zip(solved, reused):
+        np.testing.assert_array_equal(got, expected)
 
 
 #: velocity limits tight enough for random proposals to break them within a few dozen steps. Not Ant and Humanoid:

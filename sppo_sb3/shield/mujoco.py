@@ -22,6 +22,10 @@ from sppo_sb3.shield.mjmodel import ConstraintSteps, MujocoLayout, StateConstrai
 from sppo_sb3.shield.mpc import MPCSolution, ShieldStep, SolveCounts, physics_controls
 from sppo_sb3.shield.warm_starts import WarmStarts
 
+#: certificate candidates rolled per call (:meth:`MujocoShieldingRule.certify_in_chunks`): a few for the threads, and
+#: few to waste past the first certificate
+CERTIFICATE_CHUNK = 4
+
 
 class MujocoShieldingRule(ShieldingRule):
     """MPPI backup ``ζ`` and ``Q̄`` rolled on a gymnasium MuJoCo task's own model, for any constraint on its state.
@@ -249,7 +253,13 @@ class MujocoShieldingRule(ShieldingRule):
         noise = self.noise[:count, self.horizon - nominal.shape[1] :]
         return np.clip(nominal[:, None] + noise[None], self.action_low, self.action_high)
 
-    def solve(self, states: np.ndarray, nominal: np.ndarray, first_action: np.ndarray | None = None) -> MPCSolution:
+    def solve(
+        self,
+        states: np.ndarray,
+        nominal: np.ndarray,
+        first_action: np.ndarray | None = None,
+        scored: np.ndarray | None = None,
+    ) -> MPCSolution:
         """The MPC: one MPPI iteration around ``nominal``; of the MPPI plan and the best particle, the one with lower ``J``.
 
         The weighted mean of a few good particles can be worse than each of them (with the thigh 2 cm from its limit
@@ -260,12 +270,15 @@ class MujocoShieldingRule(ShieldingRule):
         :param nominal: ``(M, L, nu)`` nominal plans inside the control range (``L = H``, or ``H - 1`` after a first
             action).
         :param first_action: ``(M, nu)`` a fixed first action, or ``None``.
+        :param scored: ``(M, K)`` the ``J`` of the first ``K`` particles, already rolled (certificates); they are
+            not rolled again.
         """
         m = len(nominal)
         if m == 0:
             return MPCSolution(nominal.copy(), np.zeros(0), np.zeros(0, dtype=bool))
         particles = self.particles(nominal)
-        scores = self.plan_costs(states, particles, first_action)
+        scored = np.zeros((m, 0)) if scored is None else scored
+        scores = np.concatenate([scored, self.plan_costs(states, particles[:, scored.shape[1] :], first_action)], axis=1)
         weights = np.exp(-(scores - scores.min(axis=1, keepdims=True)) / self.temperature)
         weights /= weights.sum(axis=1, keepdims=True)
         mppi = np.clip(np.sum(weights[:, :, None, None] * particles, axis=1), self.action_low, self.action_high)
@@ -280,6 +293,26 @@ class MujocoShieldingRule(ShieldingRule):
         """Per row of ``costs`` ``(M, K)``, the index of the first ``J <= η``; ``K`` where there is none."""
         below = np.concatenate([costs <= self.eta, np.ones((len(costs), 1), dtype=bool)], axis=1)
         return np.argmax(below, axis=1)
+
+    def certify_in_chunks(self, states: np.ndarray, candidates: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, ...]:
+        """:meth:`first_certifying` of "``a``, then each candidate", rolling the candidates a few at a time and
+        stopping for each state at its first certificate (most certify early): the same answer as rolling them all.
+
+        :param candidates: ``(M, K, L, nu)`` plans after ``actions``.
+        :return: ``(M,)`` the first certifying index (``K``: none) and ``(M, K)`` the costs (NaN where not rolled;
+            complete for the states none certified).
+        """
+        m, k = candidates.shape[:2]
+        costs = np.full((m, k), np.nan)
+        first = np.full(m, k)
+        for start in range(0, k, CERTIFICATE_CHUNK):
+            open_ = np.flatnonzero(first == k)
+            chunk = slice(start, start + CERTIFICATE_CHUNK)
+            costs[open_, chunk] = self.plan_costs(states[open_], candidates[open_, chunk], actions[open_])
+            found = self.first_certifying(costs[open_, chunk])
+            certified = found < costs[open_, chunk].shape[1]
+            first[open_[certified]] = start + found[certified]
+        return first, costs
 
     def certificate_candidates(self, warm: np.ndarray) -> np.ndarray:
         """``(M, 1 + certificate_particles, H - 1, nu)``: ``W[1:]`` and the next particles of ``Q̄(s, a)``'s solve."""
@@ -360,8 +393,10 @@ class MujocoShieldingRule(ShieldingRule):
 
         1. ``Ā(s, a) <= Q̄(s, a) <= J([a, c])`` for every particle ``c`` of ``Q̄(s, a)``'s solve (``J >= 0``, and the
            solve does no worse than its best particle). Roll ``[a, W[1:]]`` (particle 0); where its ``J > η``, the
-           next ``certificate_particles`` particles: where one has ``J <= η``, keep ``a`` and follow that particle.
-        2. Else solve ``Q̄(s, a)``: where ``<= η``, keep ``a`` and follow the solve's plan.
+           next ``certificate_particles`` particles, a few at a time: where one has ``J <= η``, keep ``a`` and follow
+           the first that does.
+        2. Else solve ``Q̄(s, a)`` (its particles already rolled in 1 are not rolled again): where ``<= η``, keep ``a``
+           and follow the solve's plan.
         3. Else solve ``ζ(s)`` and bound ``Q̄(s, ζ(s))`` from above by two of its solve's candidates, ``W[1:]`` and,
            when ``ζ``'s plan is a particle, that plan's tail (then ``J([ζ, tail])`` is ``ζ``'s plan's own ``J``):
            where ``Q̄(s, a) - bound > η``, ``Ā > η``: shield.
@@ -376,14 +411,14 @@ class MujocoShieldingRule(ShieldingRule):
         intervened = np.zeros(len(states), dtype=bool)
 
         open_ = np.flatnonzero(advantage > self.eta)
-        costs = self.plan_costs(states[open_], candidates[open_, 1:], actions[open_])
-        first = self.first_certifying(costs)
+        first, costs = self.certify_in_chunks(states[open_], candidates[open_, 1:], actions[open_])
         certified = first < costs.shape[1]
         done, first = open_[certified], first[certified]
         advantage[done], tails[done] = costs[certified, first], candidates[done, 1 + first]
 
+        scored = np.concatenate([advantage[open_[~certified], None], costs[~certified]], axis=1)  # its first particles
         open_ = open_[~certified]
-        after_a = self.solve(states[open_], warm[open_, 1:], actions[open_])
+        after_a = self.solve(states[open_], warm[open_, 1:], actions[open_], scored=scored)
         advantage[open_], tails[open_] = after_a.costs, after_a.plans
         q_solves = len(open_)
 
