@@ -9,9 +9,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 
-from sppo_sb3.experiments import benchmark, layout, plan
+from sppo_sb3.experiments import benchmark, grid, layout, plan
 
+REPO = Path(__file__).resolve().parents[1]
 POINT, CHEETAH = "SafePointCircle-v0", "SafeHalfCheetahHeight-v1"
 #: (task, algo, seed): steps, wall-clock seconds, training steps/s (NaN: no finished episode)
 RUNS: dict[tuple[str, str, int], tuple[int, float, float]] = {
@@ -56,7 +58,7 @@ def test_throughput_is_measured_on_the_training_clock(results: Path) -> None:
 
 def test_paper_plan_scales_the_measured_runs_to_the_paper_grid(results: Path) -> None:
     throughput = plan.measured_throughput(plan.load_summaries(results))
-    paper = plan.paper_plan(throughput).set_index(["task", "algo"])
+    paper = plan.grid_plan(throughput).set_index(["task", "algo"])
     assert len(paper) == len(plan.PAPER_SEEDS) * len(plan.PAPER_ALGOS) == 10
     assert (paper["grid_seeds"].loc[POINT] == 8).all() and (paper["grid_seeds"].loc[CHEETAH] == 5).all()
     # SPPO's Cheetah run ran as fast as Point's seed 0; Point's seed 1 ran slower, so Point's runs cost more
@@ -64,7 +66,7 @@ def test_paper_plan_scales_the_measured_runs_to_the_paper_grid(results: Path) ->
     for task, seeds in plan.PAPER_SEEDS.items():  # core-hours: all the grid's seeds of the pair
         assert paper.loc[(task, "sppo"), "core_hours"] == pytest.approx(seeds * paper.loc[(task, "sppo"), "run_s"] / 3600)
     # a run's cost grows with the env steps at the measured rate
-    longer = plan.paper_plan(throughput, steps=2 * plan.PAPER_STEPS).set_index(["task", "algo"])
+    longer = plan.grid_plan(throughput, steps=2 * plan.PAPER_STEPS).set_index(["task", "algo"])
     extra = longer["run_s"] - paper["run_s"]
     assert extra.loc[(POINT, "pdo")] == pytest.approx(plan.PAPER_STEPS / 1000.0)
     assert paper.loc[(POINT, "cpo"), ["s_per_step", "run_s", "core_hours"]].isna().all()
@@ -85,7 +87,7 @@ def test_benchmark_plan_prints_the_table_and_runs_nothing(results: Path, capsys:
     assert benchmark.main(["--plan", "--out", str(results), "--workers", "4"]) == 0
     assert sorted(results.rglob("*")) == files
     text = capsys.readouterr().out
-    paper = plan.paper_plan(plan.measured_throughput(plan.load_summaries(results)))
+    paper = plan.grid_plan(plan.measured_throughput(plan.load_summaries(results)))
     rows = [line for line in text.splitlines() if line.startswith("| ") and "Core-hours" not in line]
     assert len(rows) == 10 + 1  # every (task, algorithm) of the paper's grid and the total
     assert "| Point Robot (SafePointCircle-v0) | CPO | not measured |" in text
@@ -94,5 +96,33 @@ def test_benchmark_plan_prints_the_table_and_runs_nothing(results: Path, capsys:
     measured = paper.dropna(subset=["core_hours"])
     total = f"{int(measured['grid_seeds'].sum())} runs | **{measured['core_hours'].sum():,.1f}** |"
     assert f"| **Total** | | | | | | {total}" in text
-    assert "Wall clock on 4 cores:" in text and "One CPU core per run" in text
+    assert "Wall clock of the runs left on 4 cores:" in text and "One CPU core per run" in text
     assert benchmark.main(["--plan", "--out", str(results / "empty"), "--workers", "4"]) == 1
+
+
+def test_velocity_plan_counts_the_runs_left(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--plan --velocity`` costs the velocity grid at its budget, and a finished run of that budget is not left."""
+    cheetah, hopper = grid.VELOCITY_TASKS[:2]
+    _write_run(tmp_path, hopper, "sppo", 0, grid.VELOCITY_STEPS, 2000.0, 60.0)  # a grid run: done
+    _write_run(tmp_path, cheetah, "sppo", 0, 5000, 100.0, 60.0)  # a shorter run: measures the rate, is not done
+    _write_run(tmp_path, cheetah, "pdo", 0, grid.VELOCITY_STEPS + 352, 300.0, 400.0)  # its last full rollout: done
+    argv = ["--plan", "--velocity", "--algos", "sppo", "pdo", "--out", str(tmp_path), "--workers", "2"]
+    assert benchmark.main(argv) == 0
+    text = capsys.readouterr().out
+    assert f"{grid.VELOCITY_STEPS:,} env steps per run" in text
+    summaries = plan.load_summaries(tmp_path)
+    seeds = dict.fromkeys(grid.VELOCITY_TASKS, grid.DEFAULT_SEEDS)
+    expected = plan.grid_plan(plan.measured_throughput(summaries), seeds, ["sppo", "pdo"], grid.VELOCITY_STEPS, summaries)
+    left = expected.set_index(["task", "algo"])["left"]
+    assert (left[(hopper, "sppo")], left[(cheetah, "sppo")], left[(cheetah, "pdo")]) == (2, 3, 2)
+    assert (left.drop([(hopper, "sppo"), (cheetah, "sppo"), (cheetah, "pdo")]) == grid.DEFAULT_SEEDS).all()
+    measured = expected.dropna(subset=["core_hours"])
+    total = f"| {int(measured['left'].sum())} runs | **{measured['left_core_hours'].sum():,.1f}** |"
+    assert total in text and int(measured["left"].sum()) == 2 + 3 + 2  # only the measured pairs are costed
+    assert "Wall clock of the runs left on 2 cores:" in text
+
+
+def test_the_velocity_budget_is_the_yml_files() -> None:
+    for path in (REPO / "hyperparams" / grid.VELOCITY_HYPERPARAMS).glob("*.yml"):
+        for task, entry in yaml.safe_load(path.read_text()).items():
+            assert float(entry["n_timesteps"]) == grid.VELOCITY_STEPS, (path.name, task)

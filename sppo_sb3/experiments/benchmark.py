@@ -4,8 +4,8 @@ Runs go to parallel local processes (``--workers``, default: the number of cores
 tasks on an existing cluster. A run with a ``DONE`` marker is skipped (``--force`` reruns it); a run that failed
 leaves ``FAILED`` and is retried by the next invocation. The algorithms are the package's (configured by
 ``--hyperparams-dir``) and any of rl-zoo3's built-in ones (:func:`~sppo_sb3.experiments.configs.resolve_config`).
-``--plan`` prints the paper-scale grid's core-hours from the throughput of the runs in ``--out``
-(:mod:`~sppo_sb3.experiments.plan`).
+``--plan`` prints the paper-scale grid's (or with ``--velocity`` the velocity grid's) core-hours and what is left of
+it, from the throughput of the runs in ``--out`` (:mod:`~sppo_sb3.experiments.plan`).
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ def parse_args(argv: Sequence[str] | None = None, default_hyperparams_dir: Path 
     parser.add_argument("--fig7", nargs="?", const="mujoco", default=None, choices=tuple(grid.FIG7_SETS), help=fig7)
     velocity = (
         f"Safety-Gymnasium's velocity tasks: {' '.join(grid.VELOCITY_ALGOS)} on {' '.join(grid.VELOCITY_TASKS)},\n"
-        f"hyperparams/{grid.VELOCITY_HYPERPARAMS}/ (1e5 env steps), each final policy deployed for "
+        f"hyperparams/{grid.VELOCITY_HYPERPARAMS}/ ({grid.VELOCITY_STEPS:.0e} env steps), each final policy deployed for "
         f"{grid.VELOCITY_DEPLOYMENT_EPISODES} episodes"
     )
     parser.add_argument("--velocity", action="store_true", help=velocity)
@@ -84,8 +84,8 @@ def parse_args(argv: Sequence[str] | None = None, default_hyperparams_dir: Path 
     parser.add_argument(
         "--plan",
         action="store_true",
-        help="print the paper-scale grid's core-hours, measured on the finished runs in --out,\n"
-        "and its wall clock on --workers cores; then exit",
+        help="print the paper-scale grid's core-hours (with --velocity: the velocity grid's), measured on the\n"
+        "finished runs in --out, and the wall clock of the runs left on --workers cores; then exit",
     )
     args = parser.parse_args(argv)
     if args.velocity and args.fig7:
@@ -159,19 +159,27 @@ def run_grid(todo: Sequence[RunSpec], args: argparse.Namespace) -> list[RunSpec]
     return failed
 
 
-def print_plan(out: Path, workers: int) -> int:
-    """Print the paper-scale plan (:func:`~sppo_sb3.experiments.plan.plan_markdown`); returns the exit status.
+def print_plan(args: argparse.Namespace) -> int:
+    """Print the plan (:func:`~sppo_sb3.experiments.plan.plan_markdown`) of the paper-scale grid, or with
+    ``--velocity`` of the velocity grid the options name (its algorithms, tasks, seeds; ``--steps`` or its budget), with
+    the runs left in ``--out``; returns the exit status.
 
-    :param out: the benchmark's output folder, whose finished runs measure the throughput.
-    :param workers: cores for the wall clock.
+    :param args: :func:`parse_args`'s result: ``--out``, whose finished runs measure the throughput, and ``--workers``,
+        the cores of the wall clock.
     """
-    if workers < 1:
-        raise SystemExit("--workers must be at least 1")
-    summaries = plan.load_summaries(out)
+    algos, tasks, seeds = grid_axes(args)
+    summaries = plan.load_summaries(args.out)
     if summaries.empty:
-        print(f"benchmark --plan: no finished runs under {out} to measure the throughput on", file=sys.stderr)
+        print(f"benchmark --plan: no finished runs under {args.out} to measure the throughput on", file=sys.stderr)
         return 1
-    print(plan.plan_markdown(plan.paper_plan(plan.measured_throughput(summaries)), workers), end="")
+    throughput = plan.measured_throughput(summaries)
+    if args.velocity:
+        steps = grid_steps(args, tasks)[0] or grid.VELOCITY_STEPS
+        grid_plan = plan.grid_plan(throughput, dict.fromkeys(tasks, len(seeds)), algos, steps, finished=summaries)
+    else:
+        steps = plan.PAPER_STEPS
+        grid_plan = plan.grid_plan(throughput, finished=summaries)
+    print(plan.plan_markdown(grid_plan, args.workers, steps), end="")
     return 0
 
 
@@ -183,7 +191,7 @@ def main(argv: Sequence[str] | None = None, default_hyperparams_dir: Path = REPO
     """
     args = parse_args(argv, default_hyperparams_dir)
     if args.plan:
-        return print_plan(args.out, args.workers)
+        return print_plan(args)
     algos, tasks, seeds = grid_axes(args)
     steps_default, steps_per_task = grid_steps(args, tasks)
     if args.ray_address is not None:

@@ -28,8 +28,10 @@ FIG7_SETS: dict[str, tuple[tuple[str, ...], str]] = {"mujoco": (FIG7_TASKS, ""),
 #: baselines (OmniSafe's strongest there, SACLag, and PDO and CPO) and SB3's SAC as the unconstrained reference
 VELOCITY_ALGOS: tuple[str, ...] = ("sppo", "saclag", "pdo", "cpo", "sac")
 VELOCITY_TASKS: tuple[str, ...] = tuple(task.env_id for task in (HALF_CHEETAH, HOPPER, WALKER2D, ANT))
-#: its hyperparameter subfolder (budget 1e5 env steps) and the episodes of each final deployment, as OmniSafe evaluates
+#: its hyperparameter subfolder, the budget of its runs (their ``n_timesteps``) and the episodes of each final
+#: deployment, as OmniSafe evaluates
 VELOCITY_HYPERPARAMS = "velocity"
+VELOCITY_STEPS = 100_000
 VELOCITY_DEPLOYMENT_EPISODES = 10
 #: ``--quick``: a few minutes on a laptop (on-policy algorithms still collect one full rollout of ``n_steps``)
 QUICK_STEPS: dict[str, int] = {"SafePointCircle-v0": 2048, "SafeHalfCheetahHeight-v1": 256}

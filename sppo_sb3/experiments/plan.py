@@ -1,7 +1,8 @@
-"""The paper-scale grid in core-hours, from the throughput that a benchmark's finished runs measured.
+"""A grid in core-hours, from the throughput that a benchmark's finished runs measured: the paper-scale grid, or
+the grid a preset names (``--velocity``), with what is left of it.
 
-Each run of the paper's grid is costed as its measured fixed cost (start-up, saving, the final deployment
-evaluations) plus the paper's env steps times its measured seconds per env step (the monitor's training clock,
+Each run of the grid is costed as its measured fixed cost (start-up, saving, the final deployment
+evaluations) plus the grid's env steps times its measured seconds per env step (the monitor's training clock,
 :func:`~sppo_sb3.experiments.summary.summarize`'s ``train_steps_per_s``). One core per run: the benchmark runs every
 train command with one thread (``--num-threads 1``, ``OMP_NUM_THREADS=1``) on the CPU.
 """
@@ -80,27 +81,41 @@ def _span(steps: np.ndarray) -> str:
     return str(low) if low == high else f"{low}–{high}"
 
 
-def paper_plan(
+def grid_plan(
     throughput: pd.DataFrame,
     seeds_per_task: dict[str, int] | None = None,
     algos: Sequence[str] = PAPER_ALGOS,
     steps: int = PAPER_STEPS,
+    finished: pd.DataFrame | None = None,
 ) -> pd.DataFrame:
-    """The grid's cost per ``(task, algo)``: seconds of one run and core-hours of all its seeds (NaN: not measured).
+    """The grid's cost per ``(task, algo)``: seconds of one run, core-hours of all its seeds and of the runs left
+    (NaN: not measured).
 
     :param throughput: :func:`measured_throughput`'s output.
-    :param seeds_per_task: the grid's tasks, in table order, and their seeds (default: :data:`PAPER_SEEDS`).
+    :param seeds_per_task: the grid's tasks, in table order, and their seeds (default: the paper's, :data:`PAPER_SEEDS`).
     :param algos: the grid's algorithms.
     :param steps: env steps per run.
-    :return: :func:`measured_throughput`'s columns (NaN where not measured), ``grid_seeds``, ``run_s``, ``core_hours``.
+    :param finished: ``summary.json`` rows of finished runs: those of ``steps`` env steps or more are done (``None``: none).
+    :return: :func:`measured_throughput`'s columns (NaN where not measured), ``grid_seeds``, ``left`` (runs not yet
+        finished), ``run_s``, ``core_hours`` and ``left_core_hours``.
     """
     seeds_per_task = PAPER_SEEDS if seeds_per_task is None else seeds_per_task
     pairs = [(task, algo) for task in seeds_per_task for algo in sorted(algos, key=algo_sort_key)]
     plan = pd.DataFrame(pairs, columns=["task", "algo"]).merge(throughput, on=["task", "algo"], how="left")
     plan["grid_seeds"] = [seeds_per_task[task] for task in plan["task"]]
+    done = pd.Series(dtype=int) if finished is None or finished.empty else finished_runs(finished, steps)
+    plan["left"] = [max(0, n - int(done.get((t, a), 0))) for t, a, n in zip(plan["task"], plan["algo"], plan["grid_seeds"])]
     plan["run_s"] = plan["fixed_s"] + steps * plan["s_per_step"]
     plan["core_hours"] = plan["grid_seeds"] * plan["run_s"] / 3600.0
+    plan["left_core_hours"] = plan["left"] * plan["run_s"] / 3600.0
     return plan
+
+
+def finished_runs(summaries: pd.DataFrame, steps: int) -> pd.Series:
+    """Finished runs of at least ``steps`` env steps (an on-policy run ends with its last full rollout) per
+    ``(task, algo)``."""
+    at_budget = summaries[summaries["steps"].astype(int) >= steps]
+    return at_budget.groupby(["task", "algo"]).size()
 
 
 def makespan_s(durations: Sequence[float] | np.ndarray, workers: int) -> float:
@@ -118,9 +133,9 @@ def makespan_s(durations: Sequence[float] | np.ndarray, workers: int) -> float:
 def plan_markdown(plan: pd.DataFrame, workers: int, steps: int = PAPER_STEPS) -> str:
     """The plan as a markdown table with totals, and its wall clock on ``workers`` cores.
 
-    :param plan: :func:`paper_plan`'s output.
+    :param plan: :func:`grid_plan`'s output.
     :param workers: cores available (one run each at a time).
-    :param steps: env steps per run (as in :func:`paper_plan`).
+    :param steps: env steps per run (as in :func:`grid_plan`).
     """
     measured = plan[np.isfinite(plan["core_hours"])]
     seeds = plan.groupby("task", sort=False)["grid_seeds"].first()
@@ -131,28 +146,29 @@ def plan_markdown(plan: pd.DataFrame, workers: int, steps: int = PAPER_STEPS) ->
         "One CPU core per run (the benchmark trains with one thread). A run costs its measured fixed seconds (start-up,",
         "saving, final evaluation) plus its env steps times the measured seconds per env step (training clock). The",
         "measured runs are short: an algorithm whose updates start later (`learning_starts`) or slow down as it trains",
-        "is underestimated.",
+        "is underestimated. A finished run of the grid's env steps (or more) is done, and not counted as left.",
         "",
-        "| Task | Method | Measured on seeds | Steps per measured run | ms / env step | Fixed s / run | Seeds | Core-hours |",
-        "|---|---|---|---|---|---|---|---|",
+        "| Task | Method | Measured on seeds | Steps per measured run | ms / env step | Fixed s / run | Seeds | Core-hours "
+        "| Runs left | Core-hours left |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for _, row in plan.iterrows():
         cells = [task_title(str(row["task"])), display_name(str(row["algo"]))]
         if np.isfinite(row["core_hours"]):
             cells += [row["seeds"], row["steps"], f"{1000 * row['s_per_step']:.3g}", f"{row['fixed_s']:.0f}"]
-            cells += [str(row["grid_seeds"]), f"{row['core_hours']:,.1f}"]
+            cells += [str(row["grid_seeds"]), f"{row['core_hours']:,.1f}", str(row["left"]), f"{row['left_core_hours']:,.1f}"]
         else:
-            cells += ["not measured", "–", "–", "–", str(row["grid_seeds"]), "–"]
+            cells += ["not measured", "–", "–", "–", str(row["grid_seeds"]), "–", str(row["left"]), "–"]
         lines.append("| " + " | ".join(cells) + " |")
-    runs = int(measured["grid_seeds"].sum())
-    total = float(measured["core_hours"].sum())
-    lines += [f"| **Total** | | | | | | {runs} runs | **{total:,.1f}** |", ""]
-    durations = np.repeat(measured["run_s"].to_numpy(dtype=float), measured["grid_seeds"].to_numpy(dtype=int))
+    runs, left = int(measured["grid_seeds"].sum()), int(measured["left"].sum())
+    total, total_left = float(measured["core_hours"].sum()), float(measured["left_core_hours"].sum())
+    lines += [f"| **Total** | | | | | | {runs} runs | **{total:,.1f}** | {left} runs | **{total_left:,.1f}** |", ""]
+    durations = np.repeat(measured["run_s"].to_numpy(dtype=float), measured["left"].to_numpy(dtype=int))
     if durations.size:
         wall_h = makespan_s(durations, workers) / 3600.0
         lines.append(
-            f"Wall clock on {workers} cores: {wall_h:,.1f} h ({wall_h / 24:.1f} days), each next-longest run on the first "
-            f"free core; the longest run alone takes {durations.max() / 3600.0:,.1f} h."
+            f"Wall clock of the runs left on {workers} cores: {wall_h:,.1f} h ({wall_h / 24:.1f} days), each next-longest "
+            f"run on the first free core; the longest run alone takes {durations.max() / 3600.0:,.1f} h."
         )
     missing = plan[~np.isfinite(plan["core_hours"])]
     if not missing.empty:
