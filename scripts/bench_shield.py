@@ -37,15 +37,15 @@ from typing import Any
 import gymnasium as gym
 import mujoco
 import numpy as np
-import yaml
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.envs.velocity import VELOCITY_TASKS
+from sppo_sb3.experiments.recording import RecordingRule
 from sppo_sb3.shield import SHIELDING_RULES, MujocoShieldingRule, rule_parameters_of
-from sppo_sb3.shield.base import ShieldDecision, ShieldingRule
+from sppo_sb3.shield.base import ShieldingRule
 from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule, rollout_heights_python
 from sppo_sb3.shield.point import PointCircleShieldingRule
-from sppo_sb3.zoo import eval_kwargs_strings, eval_yml_string
+from sppo_sb3.zoo import constructor_kwargs
 
 ENV_ID = "SafeHalfCheetahHeight-v1"
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,36 +65,10 @@ def task_rule(task: str, **settings: Any) -> MujocoShieldingRule:
     return rule
 
 
-class RecordingRule(ShieldingRule):
-    """A rule that keeps every observation and proposed action it shields, and lets ``rule`` decide."""
-
-    def __init__(self, rule: ShieldingRule) -> None:
-        super().__init__(eta=rule.eta, penalty=rule.penalty)
-        self.rule = rule
-        self.gamma = getattr(rule, "gamma", 0.99)
-        self.observations: list[np.ndarray] = []
-        self.proposals: list[np.ndarray] = []
-
-    def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        return self.rule.cost_value(obs, actions)
-
-    def backup_action(self, obs: np.ndarray) -> np.ndarray:
-        return self.rule.backup_action(obs)
-
-    def shield(self, obs: np.ndarray, actions: np.ndarray) -> ShieldDecision:
-        self.observations.append(np.array(obs, dtype=np.float64).reshape(len(obs), -1))
-        self.proposals.append(np.array(actions, dtype=np.float64).reshape(len(obs), -1))
-        return self.rule.shield(obs, actions)
-
-
 def algo_kwargs(algo: str, task: str) -> dict[str, Any]:
-    """The yml entry of ``algo`` for the task, as constructor keywords (zoo-only keys dropped)."""
-    path = VELOCITY_HYPERPARAMS / f"{algo}.yml" if task in VELOCITY_IDS else HYPERPARAMS[algo]
-    kwargs = eval_kwargs_strings(dict(yaml.safe_load(path.read_text())[task]))
-    if isinstance(kwargs.get("policy_kwargs"), str):  # rl-zoo3 evaluates this one itself
-        kwargs["policy_kwargs"] = eval_yml_string(kwargs["policy_kwargs"])
-    for key in ("n_timesteps", "n_envs", "normalize", "shield"):
-        kwargs.pop(key, None)
+    """The yml entry of ``algo`` for the task, as constructor keywords (the shield is the recording one)."""
+    kwargs = constructor_kwargs(VELOCITY_HYPERPARAMS / f"{algo}.yml" if task in VELOCITY_IDS else HYPERPARAMS[algo], task)
+    kwargs.pop("shield", None)
     return kwargs
 
 
@@ -110,9 +84,10 @@ def record_run(algo: str, task: str, steps: int, seed: int) -> dict[str, np.ndar
     kwargs = algo_kwargs(algo, task)
     model = cls(kwargs.pop("policy"), env, shield=rule, seed=seed, **kwargs)
     model.learn(steps)
+    obs, actions = rule.pairs()
     return {
-        "obs": np.concatenate(rule.observations)[:steps],
-        "actions": np.concatenate(rule.proposals)[:steps],
+        "obs": obs[:steps],
+        "actions": actions[:steps],
         "violations": np.array(model.safety_metrics.violations),
         "interventions": np.array(model.safety_metrics.interventions),
     }

@@ -27,14 +27,13 @@ from pathlib import Path
 from typing import Any
 
 import torch as th
-import yaml
 from stable_baselines3 import SAC
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
 import sppo_sb3.sppo.topo as topo
 from sppo_sb3 import SPPO
-from sppo_sb3.zoo import eval_kwargs_strings, eval_yml_string
+from sppo_sb3.zoo import constructor_kwargs
 
 HYPERPARAMS = Path(__file__).resolve().parents[1] / "hyperparams" / "sppo.yml"
 DEFAULT_STEPS = {"Pendulum-v1": 2000, "SafePointCircle-v0": 2000, "HalfCheetah-v5": 150}
@@ -69,15 +68,12 @@ class UpdatePhaseTimer(BaseCallback):
 
 
 def sppo_kwargs(env_id: str) -> dict[str, Any]:
-    """SPPO's hyperparameters for ``env_id`` from ``hyperparams/sppo.yml`` (without the zoo-only keys)."""
-    entries = yaml.safe_load(HYPERPARAMS.read_text())
-    if env_id not in entries:
-        raise SystemExit(f"{HYPERPARAMS} has no entry for {env_id} (it has: {', '.join(entries)})")
-    kwargs = eval_kwargs_strings(dict(entries[env_id]))
-    if isinstance(kwargs.get("policy_kwargs"), str):  # rl-zoo3 evaluates this one itself
-        kwargs["policy_kwargs"] = eval_yml_string(kwargs["policy_kwargs"])
-    for key in ("n_timesteps", "policy", "n_envs", "normalize"):
-        kwargs.pop(key, None)
+    """SPPO's hyperparameters for ``env_id`` from ``hyperparams/sppo.yml`` (without the policy and the zoo-only keys)."""
+    try:
+        kwargs = constructor_kwargs(HYPERPARAMS, env_id)
+    except KeyError as error:
+        raise SystemExit(error.args[0]) from None
+    kwargs.pop("policy", None)
     return kwargs
 
 

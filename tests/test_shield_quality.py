@@ -54,10 +54,11 @@ def test_the_reference_scores_itself_perfectly_and_the_trivial_predictors_as_doc
     q, shielded = rule.definition2_value(obs, actions), quality.shielded_pairs(rule, obs, actions)
     violates = quality.violation_labels(rule.band_free(), obs, actions)
     own = quality.rule_scores(rule, obs, actions, q, shielded, violates)
-    assert (own.mae, own.agreement, own.recall, own.false_shields) == (0.0, 1.0, 1.0, 0.0)
+    assert (own.mae, own.max_error, own.agreement, own.recall, own.false_shields) == (0.0, 0.0, 1.0, 1.0, 0.0)
     assert own.auc > 0.99  # its Q̄ adds the band's cost to the violation's: nearly, not exactly, a ranking by it
     zero = quality.zero_scores(q, shielded, violates)
     assert zero.mae == pytest.approx(q.mean()) and zero.agreement == pytest.approx(1.0 - shielded.mean())
+    assert zero.max_error == q.max()  # δ of Proposition 2.3 on these pairs
     assert (zero.recall, zero.false_shields, zero.auc) == (0.0, 0.0, 0.5)
     fit_obs, fit_actions = point_pairs(3000, 3)
     distance = quality.distance_scores(
@@ -76,11 +77,26 @@ def test_the_learned_shield_script_prints_every_predictors_scores(capsys: pytest
     from sppo_sb3.experiments import learned_shield
 
     argv = ["--warmup-steps", "300", "--steps", "400", "--gradient-steps", "100", "--model-steps", "100", "--seeds", "1"]
-    assert learned_shield.main(argv) == 0
+    assert learned_shield.main([*argv, "--training-steps", "500"]) == 0
     out = capsys.readouterr().out
+    assert "Scored on 3000 held-out pairs of a held-action walk" in out
+    assert "Scored on 500 pairs of a shielded SPPO run of 500 steps" in out  # every pair of a run that short
     rows = ("| learned model, warm-up data |", "| critic, warm-up data |", "| critic, held-action walk |", "| Q̄ ≡ 0 |")
     for row in (*rows, "| distance alone |", *(f"| {eta} |" for eta in learned_shield.ETAS)):
         assert row in out
     walk = learned_shield.held_action_walk(300, 0, 20, 1.0, PointCircleShieldingRule())
     np.testing.assert_array_equal(walk.actions, PointCircleShieldingRule().backup_action(walk.obs))  # all backup
     assert walk.violations == 0 and not walk.dones.any()  # the backup alone never violates
+
+
+def test_a_training_runs_pairs_are_what_the_recording_rule_was_asked_to_shield() -> None:
+    from sppo_sb3.experiments.recording import RecordingRule
+
+    rule, recording = PointCircleShieldingRule(), RecordingRule(PointCircleShieldingRule())
+    batches = [point_pairs(n, seed) for n, seed in ((3, 4), (5, 5))]
+    for obs, actions in batches:
+        decided = recording.shield(obs, actions)
+        np.testing.assert_array_equal(decided.actions, rule.shield(obs, actions).actions)  # the inner rule decides
+    obs, actions = recording.pairs()
+    np.testing.assert_array_equal(obs, np.concatenate([b[0] for b in batches]))
+    np.testing.assert_array_equal(actions, np.concatenate([b[1] for b in batches]))

@@ -330,3 +330,22 @@ def test_episode_cost_info_and_eval_callback(tmp_path: Path) -> None:
     data = np.load(tmp_path / "evaluations.npz")
     assert data["costs"].shape == (1, 3) and data["violations"].shape == (1, 3)
     assert np.isfinite(callback.last_mean_cost)
+
+
+def test_constructor_kwargs_are_the_yml_entry_as_the_constructor_takes_it(tmp_path: Path) -> None:
+    path = tmp_path / "sppo.yml"
+    path.write_text(
+        "MyTask-v0:\n  n_timesteps: !!float 1e4\n  policy: 'TOLDPolicy'\n  shield: 'auto'\n  normalize: true\n"
+        '  env_wrapper: [gymnasium.wrappers.ClipAction]\n  policy_kwargs: "dict(latent_dim=8)"\n'
+        '  planner_kwargs: "dict(num_samples=16)"\n  batch_size: 32\n'
+    )
+    kwargs = zoo.constructor_kwargs(path, "MyTask-v0")
+    assert kwargs == {
+        "policy": "TOLDPolicy",
+        "shield": "auto",
+        "policy_kwargs": {"latent_dim": 8},
+        "planner_kwargs": {"num_samples": 16},
+        "batch_size": 32,
+    }
+    with pytest.raises(KeyError, match=r"has no entry for Other-v0 \(it has: MyTask-v0\)"):
+        zoo.constructor_kwargs(path, "Other-v0")

@@ -9,6 +9,10 @@ and a predictor from the distance alone:
   ``--warmup-steps`` uniform steps, a quarter of them the backup's;
 - the critic again on a walk that meets the wall often (``--steps`` steps of actions held for ``--hold`` steps), and
   its decisions at several ``η``.
+
+With ``--training-steps N`` they are also scored on the pairs of a real training run: the states a shielded SPPO
+(``hyperparams/sppo.yml``'s Point settings, the model rule) visited in ``N`` env steps and the actions it proposed
+there, from a seed of its own. Each table has ``max |error|``, an estimate of Proposition 2.3's ``δ``.
 """
 
 from __future__ import annotations
@@ -19,11 +23,16 @@ from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
+import torch as th
 
 from sppo_sb3.common.keys import COST_KEY, SHAPED_COST_KEY
 from sppo_sb3.envs.point_circle import PointParams, point_distance_to_unsafe, point_is_unsafe
+from sppo_sb3.experiments.configs import REPO_HYPERPARAMS_DIR
+from sppo_sb3.experiments.recording import RecordingRule
 from sppo_sb3.shield import LearnedCostCriticRule, LearnedDynamicsRule, PointCircleShieldingRule, ShieldingRule, quality
 from sppo_sb3.shield.learned import definition2_step_costs
+from sppo_sb3.sppo import SPPO
+from sppo_sb3.zoo import constructor_kwargs
 
 TASK = "SafePointCircle-v0"
 #: decision thresholds on Definition 2's scale at which the learned rule's decisions are compared
@@ -40,6 +49,10 @@ class Walk:
     next_obs: np.ndarray
     dones: np.ndarray
     violations: int
+
+    def pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """The walk's observations and actions."""
+        return self.obs, self.actions
 
 
 def held_action_walk(steps: int, seed: int, hold: int, backup_fraction: float, rule: PointCircleShieldingRule) -> Walk:
@@ -75,6 +88,28 @@ def held_action_walk(steps: int, seed: int, hold: int, backup_fraction: float, r
     )
 
 
+def training_run_pairs(steps: int, seed: int, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` pairs ``(s, a)`` drawn from a shielded SPPO training run on the Point Robot: states it visited and the
+    actions it proposed there (``hyperparams/sppo.yml``'s settings, the model rule; one thread, as the benchmark).
+
+    :param steps: env steps of the run.
+    :param seed: seed of the run and of the draw.
+    :param count: pairs drawn (without replacement).
+    """
+    recording = RecordingRule(PointCircleShieldingRule())
+    kwargs = constructor_kwargs(REPO_HYPERPARAMS_DIR / "sppo.yml", TASK)
+    kwargs.pop("shield")
+    threads = th.get_num_threads()
+    th.set_num_threads(1)
+    try:
+        SPPO(kwargs.pop("policy"), TASK, shield=recording, seed=seed, **kwargs).learn(steps)
+    finally:
+        th.set_num_threads(threads)
+    obs, actions = recording.pairs()
+    pick = np.sort(np.random.default_rng(seed).choice(len(obs), size=min(count, len(obs)), replace=False))
+    return obs[pick], actions[pick]
+
+
 def fit_critic(walk: Walk, rule: PointCircleShieldingRule, seed: int, gradient_steps: int) -> LearnedCostCriticRule:
     """A learned rule with ``rule``'s backup, fitted on ``walk`` for ``gradient_steps`` minibatches of 256."""
     space = gym.make(TASK)
@@ -103,10 +138,9 @@ def fit_dynamics(walk: Walk, rule: PointCircleShieldingRule, seed: int, gradient
 
 
 def score_table(
-    learned: dict[str, ShieldingRule], reference: PointCircleShieldingRule, evaluation: Walk, fitting: Walk
+    learned: dict[str, ShieldingRule], reference: PointCircleShieldingRule, obs: np.ndarray, actions: np.ndarray, fitting: Walk
 ) -> dict[str, quality.ShieldScores]:
-    """The learned rules', ``Q̄ ≡ 0``'s and the distance predictor's scores on ``evaluation``'s pairs."""
-    obs, actions = evaluation.obs, evaluation.actions
+    """The learned rules', ``Q̄ ≡ 0``'s and the distance predictor's scores on the pairs ``(obs, actions)``."""
     reference_q, shielded = reference.definition2_value(obs, actions), quality.shielded_pairs(reference, obs, actions)
     violates = quality.violation_labels(reference.band_free(), obs, actions)
     params = PointParams()
@@ -148,7 +182,19 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--gradient-steps", type=int, default=2000, help="minibatches of 256 (default: 2000)")
     parser.add_argument("--model-steps", type=int, default=1000, help="the model's minibatches of 256 (default: 1000)")
     parser.add_argument("--seeds", type=int, default=2, help="seeds 0..N-1 (default: 2)")
+    parser.add_argument(
+        "--training-steps", type=int, default=0, help="also score on a shielded SPPO run of this many steps (default: 0, none)"
+    )
     return parser.parse_args(argv)
+
+
+def print_scores(title: str, table: dict[str, quality.ShieldScores]) -> None:
+    """A markdown table of :func:`score_table`'s scores, under ``title``."""
+    print(f"Scored on {title}:\n")
+    print("| predictor | MAE | max abs error (δ) | agreement | recall | false shields | AUC |\n|---|---|---|---|---|---|---|")
+    for name, scores in table.items():
+        print(f"| {name} | " + " | ".join(f"{value:.3f}" for value in scores.as_dict().values()) + " |")
+    print()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -167,11 +213,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         }
         print(
             f"\n### Seed {seed}: warm-up {args.warmup_steps} steps ({warmup.violations} violations), held-action walk "
-            f"{args.steps} steps ({walk.violations} violations); scored on 3000 held-out pairs\n"
+            f"{args.steps} steps ({walk.violations} violations)\n"
         )
-        print("| predictor | MAE | agreement | recall | false shields | AUC |\n|---|---|---|---|---|---|")
-        for name, scores in score_table(learned, reference, evaluation, walk).items():
-            print(f"| {name} | " + " | ".join(f"{value:.3f}" for value in scores.as_dict().values()) + " |")
+        print_scores("3000 held-out pairs of a held-action walk", score_table(learned, reference, *evaluation.pairs(), walk))
+        if args.training_steps:
+            obs, actions = training_run_pairs(args.training_steps, 2000 + seed, 3000)
+            title = f"{len(obs)} pairs of a shielded SPPO run of {args.training_steps} steps (seed {2000 + seed})"
+            print_scores(title, score_table(learned, reference, obs, actions, walk))
         print("\nThe critic of the held-action walk at other η:\n")
         print("| η (Definition 2) | agreement | recall | false shields |\n|---|---|---|---|")
         print("\n".join(eta_rows(critic, reference, evaluation)))

@@ -3,6 +3,8 @@
 A learned ``Q̄`` is judged as a shield uses it, on the same pairs ``(s, a)`` as the reference:
 
 - ``mae``: mean absolute error of ``Q̄`` on Definition 2's scale (:meth:`~sppo_sb3.shield.ShieldingRule.definition2_value`);
+  ``max_error``: the largest, an estimate of Proposition 2.3's ``δ = ‖Q̂ - Q̄‖_∞`` on the pairs scored (a rule that is
+  ``β``-adoptable on the reference's ``Q̄`` keeps ``(β + (1 + γ)δ)``-adoptability with the learned one);
 - ``agreement``: the share of pairs that the two rules shield alike (eq. 12); ``recall``: the share of the pairs the
   reference shields that the rule shields too; ``false_shields``: the share of the pairs the reference lets through
   that the rule shields;
@@ -30,6 +32,7 @@ class ShieldScores:
     """One predictor's scores against the reference (see the module docstring)."""
 
     mae: float
+    max_error: float
     agreement: float
     recall: float
     false_shields: float
@@ -89,8 +92,10 @@ def scores_from_predictions(
     shielded, reference_shielded = np.asarray(shielded, dtype=bool), np.asarray(reference_shielded, dtype=bool)
     recall = float(shielded[reference_shielded].mean()) if reference_shielded.any() else float("nan")
     false_shields = float(shielded[~reference_shielded].mean()) if (~reference_shielded).any() else float("nan")
+    errors = np.abs(np.asarray(q) - reference_q)
     return ShieldScores(
-        mae=float(np.abs(np.asarray(q) - reference_q).mean()),
+        mae=float(errors.mean()),
+        max_error=float(errors.max()),
         agreement=float((shielded == reference_shielded).mean()),
         recall=recall,
         false_shields=false_shields,

@@ -29,7 +29,7 @@ The modules import each other downward only: :mod:`~sppo_sb3.zoo.hyperparams`, :
 
 from sppo_sb3.zoo.budget import BUDGET_ENV_VAR, PENALTY_ENV_VAR, SafeTrialEvalCallback
 from sppo_sb3.zoo.experiment import DEFAULT_DEPLOYMENT_EPISODES, SafeExperimentManager
-from sppo_sb3.zoo.hyperparams import eval_kwargs_strings, eval_yml_string, merge_kwargs
+from sppo_sb3.zoo.hyperparams import constructor_kwargs, eval_kwargs_strings, eval_yml_string, merge_kwargs
 from sppo_sb3.zoo.patches import install
 from sppo_sb3.zoo.registration import UNAVAILABLE, algo_classes, register_algos, register_samplers
 from sppo_sb3.zoo.samplers import TOLD_SIZES, convert_sppo_params, sample_sppo_params
@@ -43,6 +43,7 @@ __all__ = [
     "SafeExperimentManager",
     "SafeTrialEvalCallback",
     "algo_classes",
+    "constructor_kwargs",
     "convert_sppo_params",
     "eval_kwargs_strings",
     "eval_yml_string",

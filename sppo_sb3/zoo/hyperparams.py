@@ -6,14 +6,18 @@ by the benchmark scripts to read the yml files without rl-zoo3's ``ExperimentMan
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch as th
+import yaml
 from torch import nn
 
 #: ``*_kwargs`` keys that rl-zoo3 handles itself (the others are evaluated when given as strings)
 _ZOO_KWARGS_KEYS = frozenset({"policy_kwargs", "replay_buffer_kwargs", "monitor_kwargs", "env_kwargs", "normalize_kwargs"})
+#: yml keys that configure rl-zoo3's run, not the algorithm's constructor
+_ZOO_ONLY_KEYS = frozenset({"n_timesteps", "n_envs", "normalize", "env_wrapper", "frame_stack", "callback", "vec_env_wrapper"})
 
 
 def eval_yml_string(source: str) -> Any:
@@ -54,3 +58,21 @@ def merge_kwargs(base: dict[str, Any], update: dict[str, Any]) -> dict[str, Any]
             old = eval_yml_string(old)
         merged[key] = {**old, **value} if isinstance(old, dict) and isinstance(value, dict) else value
     return merged
+
+
+def constructor_kwargs(path: Path, env_id: str) -> dict[str, Any]:
+    """An algorithm's constructor keywords for ``env_id`` from a yml file of ``hyperparams/``, as rl-zoo3 would pass
+    them (every ``*_kwargs`` string evaluated, ``policy`` and ``shield`` kept, the run's own keys dropped).
+
+    :param path: the yml file, e.g. ``hyperparams/sppo.yml``.
+    :param env_id: the task's entry.
+    :raises KeyError: the file has no entry for ``env_id``.
+    """
+    entries = yaml.safe_load(Path(path).read_text())
+    if env_id not in entries:
+        raise KeyError(f"{path} has no entry for {env_id} (it has: {', '.join(entries)})")
+    kwargs = eval_kwargs_strings(dict(entries[env_id]))
+    for key in ("policy_kwargs", "replay_buffer_kwargs"):  # rl-zoo3 evaluates these itself
+        if isinstance(kwargs.get(key), str):
+            kwargs[key] = eval_yml_string(kwargs[key])
+    return {key: value for key, value in kwargs.items() if key not in _ZOO_ONLY_KEYS}
