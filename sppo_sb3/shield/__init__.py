@@ -3,6 +3,7 @@ wrapper."""
 
 from sppo_sb3.shield.base import ShieldDecision, ShieldFailure, ShieldingRule, in_shielding_set
 from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule
+from sppo_sb3.shield.latent import LatentModelRule
 from sppo_sb3.shield.learned import LearnedCostCriticRule, RefinableRule
 from sppo_sb3.shield.learned_model import LearnedDynamicsRule
 from sppo_sb3.shield.mjmodel import ConstraintSteps, MujocoLayout, StateConstraint
@@ -25,6 +26,7 @@ __all__ = [
     "SHIELDING_RULES",
     "ConstraintSteps",
     "HalfCheetahHeightShieldingRule",
+    "LatentModelRule",
     "LearnedCostCriticRule",
     "LearnedDynamicsRule",
     "MujocoLayout",

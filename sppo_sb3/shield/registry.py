@@ -18,6 +18,7 @@ from sppo_sb3.envs.point_circle import SafePointCircleEnv, point_distance_to_uns
 from sppo_sb3.envs.velocity import VELOCITY_TASKS
 from sppo_sb3.shield.base import ShieldingRule
 from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule
+from sppo_sb3.shield.latent import LatentModelRule
 from sppo_sb3.shield.learned_model import LearnedDynamicsRule
 from sppo_sb3.shield.point import PointCircleShieldingRule, paper_point_rule
 from sppo_sb3.shield.velocity import velocity_shielding_rule
@@ -26,6 +27,8 @@ from sppo_sb3.shield.velocity import velocity_shielding_rule
 PAPER_POINT_RULE = "SafePointCircle-v0:paper"
 #: the Point Robot's rule without its model: the dynamics learned, for [learned]'s measurements (``refine_shield=True``)
 LEARNED_POINT_RULE = "SafePointCircle-v0:learned"
+#: the Point Robot's rule on SPPO's own TOLD: cost and backup heads learned on its latents (SPPO only)
+LATENT_POINT_RULE = "SafePointCircle-v0:latent"
 
 
 def learned_point_rule(**kwargs: Any) -> LearnedDynamicsRule:
@@ -46,12 +49,21 @@ def learned_point_rule(**kwargs: Any) -> LearnedDynamicsRule:
     )
 
 
+def latent_point_rule(**kwargs: Any) -> LatentModelRule:
+    """The Point rule's backup on SPPO's TOLD (:class:`LatentModelRule`), rolled for long enough to stop from full
+    speed; ``kwargs`` override. The constraint is learned too, from the env's ``info["shaped_cost"]`` and ``info["cost"]``."""
+    env, model_rule = SafePointCircleEnv(), PointCircleShieldingRule()
+    settings = {"horizon": model_rule.horizon + 10, **kwargs}
+    return LatentModelRule(env.observation_space, env.action_space, model_rule.backup_action, **settings)
+
+
 #: the rule of each task (``shield="auto"``), by gymnasium id, and named variants: a class or factory, called for
 #: every model
 SHIELDING_RULES: dict[str, Callable[..., ShieldingRule]] = {
     "SafePointCircle-v0": PointCircleShieldingRule,
     PAPER_POINT_RULE: paper_point_rule,  # the paper's and SAILR's: brake both axes, band 0.5 (Table I's first rows)
     LEARNED_POINT_RULE: learned_point_rule,  # no model: the dynamics learned from B (refine_shield=True)
+    LATENT_POINT_RULE: latent_point_rule,  # no model: Q̄ rolled on SPPO's own TOLD (SPPO, refine_shield=True)
     "SafeHalfCheetahHeight-v1": HalfCheetahHeightShieldingRule,
     **{task.env_id: functools.partial(velocity_shielding_rule, task) for task in VELOCITY_TASKS},
 }
