@@ -304,3 +304,18 @@ def test_refine_shield_warms_up_with_some_backup_actions(refine: bool) -> None:
     assert (0.17 < share < 0.33) if refine else share == 0.0
     with pytest.raises(ValueError, match="refine_backup_fraction"):
         SPPO("TOLDPolicy", env, shield=rule, refine_shield=True, refine_backup_fraction=1.5, **kwargs)
+
+
+def test_refine_shield_auto_refines_exactly_the_learnable_rules() -> None:
+    """The default: a learned rule is fitted on B (unrefined, it would never shield anything); a model rule is not."""
+    env = gym.make("SafePointCircle-v0")
+    learned = LearnedCostCriticRule(env.observation_space, env.action_space, PointCircleShieldingRule().backup_action)
+    kwargs = dict(learning_starts=100, policy_kwargs=TINIEST_TOLD, horizon=2, compile=False, seed=0)
+    assert SPPO("TOLDPolicy", env, shield=learned, **kwargs).refines_shield
+    assert not SPPO("TOLDPolicy", env, shield=learned, refine_shield=False, **kwargs).refines_shield
+    model = SPPO("TOLDPolicy", env, **kwargs)
+    assert model.refine_shield == "auto" and not model.refines_shield  # the task's model rule: nothing to fit
+    model.learn(150)
+    assert "train/shield_loss" not in model.logger.name_to_value
+    with pytest.raises(ValueError, match='True, False or "auto"'):
+        SPPO("TOLDPolicy", env, refine_shield="always", **kwargs)

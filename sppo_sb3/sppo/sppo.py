@@ -7,7 +7,7 @@ action, store ``B`` and its relabel ``B̃``); ``train`` is its training phase (T
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar, Literal, TypeVar
 
 import numpy as np
 import torch as th
@@ -24,6 +24,7 @@ from sppo_sb3.common.costs import costs_from_infos
 from sppo_sb3.common.keys import INTERVENED_KEY, N_UPDATES_LOG_KEY, PROPOSED_ACTION_KEY
 from sppo_sb3.common.safety import SafetyMetrics
 from sppo_sb3.shield.base import ShieldingRule
+from sppo_sb3.shield.latent import LatentModelRule
 from sppo_sb3.shield.learned import RefinableRule
 from sppo_sb3.shield.persistence import ShieldedLoadMixin
 from sppo_sb3.shield.registry import resolve_shielding_rule
@@ -91,9 +92,11 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
     :param refine_shield: Alg. 1 line 12, ``G ← UpdateShieldingRule(B)``: the rule learns from the real transitions
         of ``B`` during :meth:`train` (as many minibatches of ``batch_size`` as TOPO updates). Needs a learnable rule
         (:class:`~sppo_sb3.shield.RefinableRule`): :class:`~sppo_sb3.shield.LearnedDynamicsRule` (a learned model,
-        the task's constraint known) or :class:`~sppo_sb3.shield.LearnedCostCriticRule` (a cost critic, fitted on
-        ``info["shaped_cost"]``). For tasks without a model to roll ``Q̄`` on: the backup policy ``ζ`` has to be known.
-        A rule that has learned nothing shields nothing, so it protects only once it has seen the task.
+        the task's constraint known), :class:`~sppo_sb3.shield.LatentModelRule` (``Q̄`` rolled on this model's TOLD)
+        or :class:`~sppo_sb3.shield.LearnedCostCriticRule` (a cost critic, fitted on ``info["shaped_cost"]``). For
+        tasks without a model to roll ``Q̄`` on: the backup policy ``ζ`` has to be known. ``"auto"`` (default)
+        refines exactly the learnable rules: one that has learned nothing shields nothing, so a learned rule that is
+        not refined never protects. ``False`` keeps a pre-trained rule as it is.
     :param refine_backup_fraction: with ``refine_shield``, the share of warm-up steps (before ``learning_starts``)
         that execute the backup ``ζ(s)`` instead of a uniform action. Every target of the learned ``Q̄`` reads it at
         ``(s', ζ(s'))``, and the backup's actions (e.g. full braking, a corner of the action box) are ones uniform
@@ -149,7 +152,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         absorbing: AbsorbingMode = "restart",
         absorbing_penalty: float | None = None,
         termination_model: bool = False,
-        refine_shield: bool = False,
+        refine_shield: bool | Literal["auto"] = "auto",
         refine_backup_fraction: float = 0.25,
         planner_kwargs: dict[str, Any] | None = None,
         topo_kwargs: dict[str, Any] | None = None,
@@ -197,7 +200,10 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         self.absorbing = absorbing
         self.absorbing_penalty = absorbing_penalty
         self.termination_model = termination_model
-        self.refine_shield = refine_shield
+        if refine_shield not in (True, False, "auto"):
+            raise ValueError(f'refine_shield is True, False or "auto" (refine a learnable rule); got {refine_shield!r}.')
+        self.refine_shield = refine_shield if refine_shield == "auto" else bool(refine_shield)
+        self.refines_shield = False  # resolved against the rule in _setup_model
         if not 0.0 <= refine_backup_fraction <= 1.0:
             raise ValueError(
                 f"refine_backup_fraction is a share of the warm-up steps, in [0, 1]; got {refine_backup_fraction}."
@@ -230,16 +236,28 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         self._convert_train_freq()
         if self.shield_rule is None:
             self.shield_rule = resolve_shielding_rule(self.shield, self.env, required=False)
-        if self.refine_shield and not isinstance(self.shield_rule, RefinableRule):
+        learnable = isinstance(self.shield_rule, RefinableRule)
+        if self.refine_shield is True and not learnable:
             raise ValueError(
-                f"refine_shield=True fits the shielding rule on the replay buffer, which needs a learnable rule "
-                f"(sppo_sb3.shield.LearnedCostCriticRule or LearnedDynamicsRule with your backup policy), got "
-                f"{self.shield_rule!r}. Pass shield=LearnedDynamicsRule(...) or refine_shield=False."
+                "refine_shield=True fits the shielding rule on the replay buffer, which needs a learnable rule "
+                "(sppo_sb3.shield.LearnedDynamicsRule, LatentModelRule or LearnedCostCriticRule with your backup policy), "
+                f'got {self.shield_rule!r}. Pass shield=LearnedDynamicsRule(...) or refine_shield="auto".'
             )
+        self.refines_shield = learnable and self.refine_shield is not False
+        if isinstance(self.shield_rule, LatentModelRule):  # it rolls Q̄ on this model's TOLD
+            self.shield_rule.bind(self.policy.model, self._told_inputs)
         self._setup_compiled()
         if self.safety_metrics is None:
             self.safety_metrics = SafetyMetrics(self.n_envs, window=self._stats_window_size)
         self.safety_metrics.resize(self.n_envs)
+
+    def _told_inputs(self, raw_obs: np.ndarray) -> np.ndarray:
+        """Raw observations as TOLD reads them: normalised where the env is wrapped in ``VecNormalize``."""
+        if self._vec_normalize_env is None:
+            return raw_obs
+        normalized = self._vec_normalize_env.normalize_obs(raw_obs)
+        assert isinstance(normalized, np.ndarray)  # SPPO's spaces are flat Boxes
+        return normalized
 
     def _setup_compiled(self) -> None:
         """The planner, the TOPO update (compiled or eager, see ``compile``) and training's warm start."""
@@ -312,7 +330,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         ``refine_shield``), MPPI afterwards (Alg. 2)."""
         if self.num_timesteps < learning_starts:
             warmup = np.random.uniform(-1.0, 1.0, size=(len(obs), self.planner.action_dim)).astype(np.float32)
-            if self.refine_shield and self.refine_backup_fraction > 0.0:
+            if self.refines_shield and self.refine_backup_fraction > 0.0:
                 assert self.shield_rule is not None
                 backup = np.random.random(len(obs)) < self.refine_backup_fraction
                 if backup.any():
@@ -402,7 +420,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
             self._train_stats += stats
             self._train_stats_count += 1
         self.logger.record(N_UPDATES_LOG_KEY, self._n_updates, exclude="tensorboard")  # as SB3's off-policy algorithms
-        if self.refine_shield:
+        if self.refines_shield:
             self._refine_shield(gradient_steps, batch_size)
         policy.set_training_mode(False)
         self.planner.mark_stale()
