@@ -77,13 +77,21 @@ def test_the_learned_shield_script_prints_every_predictors_scores(capsys: pytest
     from sppo_sb3.experiments import learned_shield
 
     argv = ["--warmup-steps", "300", "--steps", "400", "--gradient-steps", "100", "--model-steps", "100", "--seeds", "1"]
-    assert learned_shield.main([*argv, "--training-steps", "500"]) == 0
+    assert learned_shield.main([*argv, "--training-steps", "500", "--latent", "untrained"]) == 0
     out = capsys.readouterr().out
     assert "Scored on 3000 held-out pairs of a held-action walk" in out
     assert "Scored on 500 pairs of a shielded SPPO run of 500 steps" in out  # every pair of a run that short
     rows = ("| learned model, warm-up data |", "| critic, warm-up data |", "| critic, held-action walk |", "| Q̄ ≡ 0 |")
-    for row in (*rows, "| distance alone |", *(f"| {eta} |" for eta in learned_shield.ETAS)):
+    for row in (
+        *rows,
+        "| latent model, held-action walk |",
+        "| distance alone |",
+        *(f"| {eta} |" for eta in learned_shield.ETAS),
+    ):
         assert row in out
+    assert out.count("Mean Ā on the pairs the model rule shields") == 2  # under both tables
+    model_row = next(line for line in out.splitlines() if line.startswith("| model rule |"))
+    assert model_row.endswith("| 1.000 |")  # the model rule shields every pair it shields
     walk = learned_shield.held_action_walk(300, 0, 20, 1.0, PointCircleShieldingRule())
     np.testing.assert_array_equal(walk.actions, PointCircleShieldingRule().backup_action(walk.obs))  # all backup
     assert walk.violations == 0 and not walk.dones.any()  # the backup alone never violates

@@ -8,7 +8,13 @@ and a predictor from the distance alone:
   :class:`~sppo_sb3.shield.LearnedCostCriticRule` (``Q̄`` fitted on the costs), both on what a warm-up holds:
   ``--warmup-steps`` uniform steps, a quarter of them the backup's;
 - the critic again on a walk that meets the wall often (``--steps`` steps of actions held for ``--hold`` steps), and
-  its decisions at several ``η``.
+  its decisions at several ``η``;
+- with ``--latent``, a :class:`~sppo_sb3.shield.LatentModelRule` fitted on the same walk, on the TOLD of a saved SPPO
+  model (``--latent PATH``) or an untrained one of the Point settings' size (``--latent untrained``).
+
+Under each table, the mean ``Ā`` of every rule on the pairs the model rule shields, beside the model rule's own: a
+shield compares ``a`` with ``ζ(s)`` in one state, so a rule that ranks states well but cannot separate the two
+decides badly.
 
 With ``--training-steps N`` they are also scored on the pairs of a real training run: the states a shielded SPPO
 (``hyperparams/sppo.yml``'s Point settings, the model rule) visited in ``N`` env steps and the actions it proposed
@@ -29,8 +35,16 @@ from sppo_sb3.common.keys import COST_KEY, SHAPED_COST_KEY
 from sppo_sb3.envs.point_circle import PointParams, point_distance_to_unsafe, point_is_unsafe
 from sppo_sb3.experiments.configs import REPO_HYPERPARAMS_DIR
 from sppo_sb3.experiments.recording import RecordingRule
-from sppo_sb3.shield import LearnedCostCriticRule, LearnedDynamicsRule, PointCircleShieldingRule, ShieldingRule, quality
-from sppo_sb3.shield.learned import definition2_step_costs
+from sppo_sb3.shield import (
+    LatentModelRule,
+    LearnedCostCriticRule,
+    LearnedDynamicsRule,
+    PointCircleShieldingRule,
+    ShieldingRule,
+    quality,
+)
+from sppo_sb3.shield.learned import CostTransitions, definition2_step_costs
+from sppo_sb3.shield.registry import latent_point_rule
 from sppo_sb3.sppo import SPPO
 from sppo_sb3.zoo import constructor_kwargs
 
@@ -49,10 +63,16 @@ class Walk:
     next_obs: np.ndarray
     dones: np.ndarray
     violations: int
+    shaped_costs: np.ndarray
+    costs: np.ndarray
 
     def pairs(self) -> tuple[np.ndarray, np.ndarray]:
         """The walk's observations and actions."""
         return self.obs, self.actions
+
+    def cost_transitions(self) -> CostTransitions:
+        """The walk as a replay buffer's transitions, as :meth:`RefinableRule.refine` takes them."""
+        return CostTransitions(self.obs, self.actions, self.shaped_costs, self.costs, self.next_obs, self.dones)
 
 
 def held_action_walk(steps: int, seed: int, hold: int, backup_fraction: float, rule: PointCircleShieldingRule) -> Walk:
@@ -77,14 +97,16 @@ def held_action_walk(steps: int, seed: int, hold: int, backup_fraction: float, r
         for key, value in zip(rows, (obs, action, info[SHAPED_COST_KEY], info[COST_KEY], next_obs, terminated)):
             rows[key].append(value)
         obs = next_obs if not (terminated or truncated) else env.reset()[0]
-    violations = np.array(rows["violations"]) > 0
+    violations, shaped = np.array(rows["violations"]) > 0, np.array(rows["shaped"], dtype=np.float64)
     return Walk(
         obs=np.array(rows["obs"], dtype=np.float64),
         actions=np.array(rows["actions"], dtype=np.float64),
-        step_costs=definition2_step_costs(np.array(rows["shaped"]), violations, rule.gamma),
+        step_costs=definition2_step_costs(shaped, violations, rule.gamma),
         next_obs=np.array(rows["next_obs"], dtype=np.float64),
         dones=np.array(rows["dones"]) | violations,
         violations=int(violations.sum()),
+        shaped_costs=shaped,
+        costs=violations.astype(np.float64),
     )
 
 
@@ -172,6 +194,43 @@ def eta_rows(critic: LearnedCostCriticRule, reference: PointCircleShieldingRule,
     return rows
 
 
+def fit_latent(walk: Walk, source: str, seed: int, gradient_steps: int) -> LatentModelRule:
+    """The Point rule's :class:`LatentModelRule`, bound to the TOLD of the SPPO model saved at ``source`` (or an
+    untrained one of ``hyperparams/sppo.yml``'s Point size for ``"untrained"``), its heads fitted on ``walk``."""
+    if source == "untrained":
+        kwargs = constructor_kwargs(REPO_HYPERPARAMS_DIR / "sppo.yml", TASK)
+        model = SPPO(kwargs["policy"], TASK, policy_kwargs=kwargs["policy_kwargs"], compile=False, seed=seed)
+    else:
+        model = SPPO.load(source, device="cpu")
+    rule = latent_point_rule(seed=seed)
+    rule.bind(model.policy.model)
+    transitions = walk.cost_transitions()
+    for _ in range(gradient_steps):
+        rule.refine(transitions, 256)
+    return rule
+
+
+def separation_rows(
+    learned: dict[str, ShieldingRule], reference: PointCircleShieldingRule, obs: np.ndarray, actions: np.ndarray
+) -> list[str]:
+    """Markdown rows: each rule's mean ``Ā`` (Definition 2's scale) on the pairs the model rule shields."""
+    shielded = quality.shielded_pairs(reference, obs, actions)
+    obs, actions = obs[shielded], actions[shielded]
+    rows = []
+    for name, rule in {"model rule": reference, **learned}.items():
+        advantage = rule.definition2_value(obs, actions) - rule.definition2_value(obs, rule.backup_action(obs))
+        share = quality.shielded_pairs(rule, obs, actions).mean()
+        rows.append(f"| {name} | {len(obs)} | {advantage.mean():.3f} | {share:.3f} |")
+    return rows
+
+
+def print_separation(rows: list[str]) -> None:
+    """The rows of :func:`separation_rows` under their header."""
+    print("Mean Ā on the pairs the model rule shields:\n")
+    print("| rule | pairs | mean Ā (Definition 2) | share shielded |\n|---|---|---|---|")
+    print("\n".join(rows) + "\n")
+
+
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     """Command-line options (see ``--help``)."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -182,6 +241,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--gradient-steps", type=int, default=2000, help="minibatches of 256 (default: 2000)")
     parser.add_argument("--model-steps", type=int, default=1000, help="the model's minibatches of 256 (default: 1000)")
     parser.add_argument("--seeds", type=int, default=2, help="seeds 0..N-1 (default: 2)")
+    parser.add_argument(
+        "--latent", default="", help="also fit a LatentModelRule on the TOLD of this saved SPPO model, or 'untrained'"
+    )
     parser.add_argument(
         "--training-steps", type=int, default=0, help="also score on a shielded SPPO run of this many steps (default: 0, none)"
     )
@@ -211,15 +273,19 @@ def main(argv: Sequence[str] | None = None) -> int:
             "critic, warm-up data": fit_critic(warmup, reference, seed, args.gradient_steps),
             "critic, held-action walk": critic,
         }
+        if args.latent:
+            learned["latent model, held-action walk"] = fit_latent(walk, args.latent, seed, args.gradient_steps)
         print(
             f"\n### Seed {seed}: warm-up {args.warmup_steps} steps ({warmup.violations} violations), held-action walk "
             f"{args.steps} steps ({walk.violations} violations)\n"
         )
         print_scores("3000 held-out pairs of a held-action walk", score_table(learned, reference, *evaluation.pairs(), walk))
+        print_separation(separation_rows(learned, reference, *evaluation.pairs()))
         if args.training_steps:
             obs, actions = training_run_pairs(args.training_steps, 2000 + seed, 3000)
             title = f"{len(obs)} pairs of a shielded SPPO run of {args.training_steps} steps (seed {2000 + seed})"
             print_scores(title, score_table(learned, reference, obs, actions, walk))
+            print_separation(separation_rows(learned, reference, obs, actions))
         print("\nThe critic of the held-action walk at other η:\n")
         print("| η (Definition 2) | agreement | recall | false shields |\n|---|---|---|---|")
         print("\n".join(eta_rows(critic, reference, evaluation)))
