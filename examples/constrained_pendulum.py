@@ -34,7 +34,7 @@ from sppo_sb3 import SPPO
 from sppo_sb3.common.costs import shaped_cost
 from sppo_sb3.common.keys import COST_KEY
 from sppo_sb3.common.safety import SafetyMetrics
-from sppo_sb3.shield import ShieldingRule, ShieldWrapper, register_shielding_rule
+from sppo_sb3.shield import LatentModelRule, LearnedDynamicsRule, ShieldingRule, ShieldWrapper, register_shielding_rule
 
 ENV_ID = "ConstrainedPendulum-v0"
 MAX_SPEED = 4.0  # rad/s: the constraint
@@ -136,10 +136,41 @@ class PendulumBrakeRule(ShieldingRule):
         return q
 
 
+# ------------------------------------------------------------------------------------------- 2b. the rule, no model
+def over_speed(obs: np.ndarray) -> np.ndarray:
+    """In the unsafe set ``|θ̇| > 4``, from ``(B, 3)`` observations: ``(B,)`` booleans."""
+    return np.abs(obs[:, 2]) > MAX_SPEED
+
+
+def speed_margin(obs: np.ndarray) -> np.ndarray:
+    """Distance ``4 - |θ̇|`` to the unsafe set (0 inside), from ``(B, 3)`` observations: ``(B,)``."""
+    return np.maximum(0.0, MAX_SPEED - np.abs(obs[:, 2]))
+
+
+def learned_pendulum_rule(**kwargs: Any) -> LearnedDynamicsRule:
+    """The brake and the constraint without Pendulum's equations: ``Q̄`` rolled on dynamics learned from the buffer.
+
+    What a user who knows only how to stop the pendulum builds; ``SPPO`` fits it on its buffer (``refine_shield``).
+    """
+    env, rule = ConstrainedPendulumEnv(), PendulumBrakeRule()
+    settings: dict[str, Any] = {"alpha": rule.alpha, "gamma": rule.gamma, "horizon": rule.horizon, **kwargs}
+    space = env.observation_space, env.action_space
+    return LearnedDynamicsRule(*space, rule.backup_action, over_speed, speed_margin, **settings)
+
+
+def latent_pendulum_rule(**kwargs: Any) -> LatentModelRule:
+    """The brake alone: ``Q̄`` rolled on SPPO's own TOLD, the constraint learned from ``info["shaped_cost"]``."""
+    env, rule = ConstrainedPendulumEnv(), PendulumBrakeRule()
+    settings: dict[str, Any] = {"gamma": rule.gamma, "horizon": rule.horizon, **kwargs}
+    return LatentModelRule(env.observation_space, env.action_space, rule.backup_action, **settings)
+
+
 # ------------------------------------------------------------------------------------------------- 3. registration
 if ENV_ID not in registry:
     register(id=ENV_ID, entry_point=ConstrainedPendulumEnv, max_episode_steps=200)
 register_shielding_rule(ENV_ID, PendulumBrakeRule)
+register_shielding_rule(f"{ENV_ID}:learned", learned_pendulum_rule)  # shield="ConstrainedPendulum-v0:learned"
+register_shielding_rule(f"{ENV_ID}:latent", latent_pendulum_rule)
 
 
 # ------------------------------------------------------------------------------------------------- 4. training

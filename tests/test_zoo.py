@@ -12,7 +12,9 @@ import json
 import os
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -199,10 +201,16 @@ def _entry_id(value: object) -> str:
     return str(value.relative_to(HYPERPARAMS)) if isinstance(value, Path) else str(value)
 
 
+#: tasks of hyperparams/ that an example registers (``--gym-packages examples.<module>``)
+EXAMPLE_TASKS = {"ConstrainedPendulum-v0": "constrained_pendulum"}
+
+
 @pytest.mark.parametrize(("config", "env_id"), _yml_file_entries(), ids=_entry_id)
-def test_yml_entry_constructs(config: Path, env_id: str, tmp_path: Path) -> None:
+def test_yml_entry_constructs(config: Path, env_id: str, tmp_path: Path, load_example: Callable[[str], ModuleType]) -> None:
     """Each entry, processed by rl-zoo3's own code (schedules, policy_kwargs, normalize, ...), builds its model."""
     algo = config.stem
+    if env_id in EXAMPLE_TASKS:
+        load_example(EXAMPLE_TASKS[env_id])
     manager_cls = zoo.install()
     manager = manager_cls(argparse.Namespace(), algo, env_id, str(tmp_path), eval_freq=-1, config=str(config), verbose=0)
     from rl_zoo3.utils import ALGOS as ZOO_ALGOS
