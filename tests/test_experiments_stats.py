@@ -128,7 +128,7 @@ def test_tables_print_intervals_and_iqm_where_the_seeds_allow() -> None:
     ours = f"{sppo['safety_rate_mean']:.2f} [{sppo['safety_rate_ci_low']:.2f}, {sppo['safety_rate_ci_high']:.2f}]"
     iqm = f"{sppo['return_last_n_iqm']:.2f} [{sppo['return_last_n_iqm_ci_low']:.2f}, {sppo['return_last_n_iqm_ci_high']:.2f}]"
     assert ours in markdown and iqm in markdown and "| IQM: Safety rate (%) |" in markdown
-    assert "| PDO | 10 ↑ | 50.0 ± 0.0 | 90.00 ± 0.00 |" in markdown  # one seed: no interval
+    assert "| PDO | 10 ↑ | 50.0 ± 0.0 | – | 90.00 ± 0.00 |" in markdown  # one seed: no interval; no curve: no share
     assert "99.73 ± 0.31" in markdown  # the paper's Table I stays beside ours
     returns = tables.returns_table_markdown(table)
     assert iqm in returns and "| IQM: Return (last episodes) |" in returns
@@ -154,6 +154,13 @@ def test_training_return_mean_is_the_curves_mean_height_and_rewards_learning_soo
     later = pd.DataFrame({"timesteps": steps, "return": [0.0, 0.0, 0.0, 0.0, 100.0]})
     assert stats.training_return_mean(sooner) > stats.training_return_mean(linear) > stats.training_return_mean(later)
     assert np.isnan(stats.training_return_mean(linear.iloc[:0]))
+
+
+def test_early_violation_share_counts_the_episodes_ended_in_the_first_tenth() -> None:
+    curve = pd.DataFrame({"timesteps": [50, 100, 101, 600, 1000], "violations": [1, 2, 4, 1, 0]})
+    assert stats.early_violation_share(curve, 1000) == pytest.approx(100.0 * 3 / 8)  # the episodes ended by step 100
+    assert stats.early_violation_share(curve, 1000, fraction=0.6) == pytest.approx(100.0)
+    assert np.isnan(stats.early_violation_share(curve.assign(violations=0), 1000))  # none paid: no share
 
 
 def test_tables_show_the_mean_return_over_training() -> None:

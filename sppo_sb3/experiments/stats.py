@@ -26,6 +26,7 @@ from sppo_sb3.experiments.spec import run_name
 #: the ``summary.json`` figures aggregated as mean and std over seeds
 AGGREGATED_KEYS: tuple[str, ...] = (
     "cumulative_violations",
+    "violations_early_share",
     "safety_rate",
     "return_last_n",
     "return_training_mean",
@@ -56,6 +57,8 @@ CONFIDENCE = 0.95
 IQM_MIN_SEEDS = 4
 #: env steps at which :func:`training_return_mean` reads a learning curve
 TRAINING_CURVE_POINTS = 100
+#: the start of training whose share of the violations :func:`early_violation_share` reports
+EARLY_FRACTION = 0.1
 
 
 def training_return_mean(curve: pd.DataFrame, points: int = TRAINING_CURVE_POINTS) -> float:
@@ -75,11 +78,28 @@ def training_return_mean(curve: pd.DataFrame, points: int = TRAINING_CURVE_POINT
     return float(np.mean(np.interp(grid, steps, curve["return"].to_numpy(dtype=float))))
 
 
+def early_violation_share(curve: pd.DataFrame, steps: float, fraction: float = EARLY_FRACTION) -> float:
+    """How much of its cost a learner paid before it had learned: the percentage of a run's violations in the
+    episodes that ended within its first ``fraction`` of ``steps``.
+
+    :param curve: the run's ``curve.csv`` (``timesteps``, ``violations``).
+    :param steps: the run's env steps.
+    :param fraction: the share of the run counted as its start.
+    :return: the percentage, NaN for a run without a violation.
+    """
+    total = float(curve["violations"].sum()) if "violations" in curve else 0.0
+    if total == 0:
+        return float("nan")
+    early = float(curve.loc[curve["timesteps"] <= fraction * steps, "violations"].sum())
+    return 100.0 * early / total
+
+
 def load_results(root: Path) -> tuple[pd.DataFrame, dict[tuple[str, str], list[pd.DataFrame]]]:
     """The finished runs under a grid's output folder (:mod:`sppo_sb3.experiments.layout`).
 
     :param root: the benchmark's output folder.
-    :return: one row of ``summary.json`` per run, with its :func:`training_return_mean` as ``return_training_mean``
+    :return: one row of ``summary.json`` per run, with its :func:`training_return_mean` as ``return_training_mean``,
+        its :func:`early_violation_share` as ``violations_early_share``
         and its row name (:func:`~sppo_sb3.experiments.spec.run_name`: ``cpo-shielded`` for a variant) as ``algo``, and
         the runs' curves by ``(task, algo)`` (seed order).
     """
@@ -88,7 +108,11 @@ def load_results(root: Path) -> tuple[pd.DataFrame, dict[tuple[str, str], list[p
     for run_dir in layout.finished_run_dirs(root):
         summary, curve = layout.read_summary(run_dir), layout.read_curve(run_dir)
         name = run_name(summary["algo"], summary.get("variant", ""))
-        rows.append({**summary, "algo": name, "return_training_mean": training_return_mean(curve)})
+        steps = summary.get("steps") or (float(curve["timesteps"].max()) if not curve.empty else 0.0)
+        early = early_violation_share(curve, steps)
+        rows.append(
+            {**summary, "algo": name, "return_training_mean": training_return_mean(curve), "violations_early_share": early}
+        )
         curves.setdefault((summary["task"], name), []).append(curve)
     return pd.DataFrame(rows), curves
 

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 
 from sppo_sb3.experiments.display import display_name, env_steps_per_step, task_title
-from sppo_sb3.experiments.stats import BOOTSTRAP_REPS, IQM_MIN_SEEDS, order_of_magnitude
+from sppo_sb3.experiments.stats import BOOTSTRAP_REPS, EARLY_FRACTION, IQM_MIN_SEEDS, order_of_magnitude
 
 #: the paper's Tables I (Point Robot) and II (Half-Cheetah): violations' order of magnitude, safety rate mean, std
 PAPER_TABLES: dict[str, dict[str, tuple[str, float, float]]] = {
@@ -76,6 +76,7 @@ def _has_iqm(table: pd.DataFrame, key: str) -> bool:
 #: the Tables I–II figures with an estimate over seeds: (key, digits, column title)
 SAFETY_ESTIMATES: tuple[tuple[str, int, str], ...] = (
     ("cumulative_violations", 1, "Cumulative violations"),
+    ("violations_early_share", 1, f"Violations in the first {EARLY_FRACTION:.0%} of steps (%)"),
     ("safety_rate", 2, "Safety rate (%)"),
     ("return_last_n", 2, "Return (last episodes)"),
     ("return_training_mean", 2, "Return (mean over training)"),
@@ -110,7 +111,9 @@ def safety_tables_markdown(table: pd.DataFrame) -> str:
     lines = [
         "<!-- written by scripts/plot_results.py -->",
         "Violations (10^*): order of magnitude of the mean cumulative constraint violations over training, as in the",
-        "paper (`0`: none; `10 ↓`: 1–9; `10^k ↑`: at least 10^k). Safety rate: episodes without a violation / all",
+        "paper (`0`: none; `10 ↓`: 1–9; `10^k ↑`: at least 10^k). Violations in the first 10%: the share of a run's",
+        "violations paid in the episodes that ended in its first tenth of env steps (`–`: none paid).",
+        "Safety rate: episodes without a violation / all",
         "training episodes. Return (last episodes): mean training-episode return of each run's last episodes. Return",
         "(mean over training): each run's learning curve averaged over its env steps, its area over its length (higher:",
         "learned sooner). Deployed without shield: the final policy alone, on fresh episodes (`sppo-train`'s deployment",
