@@ -28,7 +28,7 @@ from sppo_sb3 import zoo
 from sppo_sb3.algorithms import ALGORITHMS, DISPLAY_ORDER, ZOO_BASELINES, Algorithm
 from sppo_sb3.common.monitor import COST_INFO_KEYWORDS, CostEvalCallback, EpisodeCostInfo, cost_monitored_make_vec_env
 from sppo_sb3.evaluation import deployment_rule
-from sppo_sb3.shield import ShieldingRule
+from sppo_sb3.shield import ShieldingRule, ShieldWrapper
 
 REPO = Path(__file__).resolve().parents[1]
 HYPERPARAMS = REPO / "hyperparams"
@@ -357,3 +357,18 @@ def test_constructor_kwargs_are_the_yml_entry_as_the_constructor_takes_it(tmp_pa
     }
     with pytest.raises(KeyError, match=r"has no entry for Other-v0 \(it has: MyTask-v0\)"):
         zoo.constructor_kwargs(path, "Other-v0")
+
+
+def test_monitor_records_the_episodes_an_absorbing_shield_ends(tmp_path: Path) -> None:
+    """rl-zoo3's env_wrapper goes inside Monitor: an episode that ShieldWrapper ends at an intervention is recorded."""
+    shield = {"rule": "auto", "on_intervention": "absorb"}
+    env = cost_monitored_make_vec_env(
+        "SafePointCircle-v0", 1, wrapper_class=ShieldWrapper, wrapper_kwargs=shield, monitor_dir=str(tmp_path)
+    )
+    env.reset()
+    for _ in range(500):  # full thrust along x, into the wall
+        _, _, dones, infos = env.step(np.array([[1.0, 0.0]]))
+        if infos[0].get("shield_absorbed"):
+            break
+    assert infos[0]["shield_absorbed"] and dones[0] and "episode" in infos[0]
+    assert len(pd.read_csv(next(tmp_path.glob("*monitor.csv")), skiprows=1)) == 1

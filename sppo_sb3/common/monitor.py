@@ -4,7 +4,8 @@
   ``episode_cost`` (sum of ``info["cost"]``) and ``episode_violations`` (steps with ``info["cost"] > 0``) to the info of
   the step that ends an episode. ``Monitor(env, info_keywords=COST_INFO_KEYWORDS)`` then writes them as two extra
   columns of ``monitor.csv`` and into ``info["episode"]``.
-- :func:`cost_monitored_make_vec_env` is SB3's ``make_vec_env`` with that wrapper and those columns always added.
+- :func:`cost_monitored_make_vec_env` is SB3's ``make_vec_env`` with that wrapper and those columns always added, and
+  the user's ``wrapper_class`` inside ``Monitor``.
 - :class:`CostEvalCallback` is SB3's ``EvalCallback`` that also measures the evaluation episodes' cost: logged as
   ``eval/mean_cost``, ``eval/mean_violations`` and ``eval/safe_episode_rate`` next to ``eval/mean_reward``, and saved as
   ``costs``/``violations`` in ``evaluations.npz``.
@@ -63,35 +64,55 @@ class EpisodeCostInfo(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
 
-def with_episode_cost(env_id: str | Callable[..., gym.Env]) -> Callable[..., gym.Env]:
-    """An env factory (``**env_kwargs -> env``) that wraps ``env_id``'s env with :class:`EpisodeCostInfo`.
+def with_episode_cost(
+    env_id: str | Callable[..., gym.Env],
+    wrapper_class: Callable[..., gym.Env] | None = None,
+    wrapper_kwargs: dict[str, Any] | None = None,
+) -> Callable[..., gym.Env]:
+    """An env factory (``**env_kwargs -> env``): ``env_id``'s env, wrapped by ``wrapper_class``, then :class:`EpisodeCostInfo`.
 
     :param env_id: a registered id or a callable returning an env, as accepted by SB3's ``make_vec_env``.
+    :param wrapper_class: a wrapper applied to the env first (rl-zoo3's ``env_wrapper``), ``None``: none.
+    :param wrapper_kwargs: keyword arguments of ``wrapper_class``.
     """
 
     def make(**env_kwargs: Any) -> gym.Env:
         env = gym.make(env_id, **env_kwargs) if isinstance(env_id, str) else env_id(**env_kwargs)
+        if wrapper_class is not None:
+            env = wrapper_class(env, **(wrapper_kwargs or {}))
         return EpisodeCostInfo(env)
 
     return make
 
 
 def cost_monitored_make_vec_env(
-    env_id: str | Callable[..., gym.Env], n_envs: int = 1, *, monitor_kwargs: dict[str, Any] | None = None, **kwargs: Any
+    env_id: str | Callable[..., gym.Env],
+    n_envs: int = 1,
+    *,
+    monitor_kwargs: dict[str, Any] | None = None,
+    wrapper_class: Callable[..., gym.Env] | None = None,
+    wrapper_kwargs: dict[str, Any] | None = None,
+    **kwargs: Any,
 ) -> VecEnv:
     """SB3's ``make_vec_env`` whose ``Monitor`` also writes ``episode_cost`` and ``episode_violations``.
 
     Same arguments as :func:`stable_baselines3.common.env_util.make_vec_env`; ``monitor_kwargs["info_keywords"]``
-    is extended with :data:`COST_INFO_KEYWORDS` (keywords already there are kept).
+    is extended with :data:`COST_INFO_KEYWORDS` (keywords already there are kept). Unlike SB3's, ``wrapper_class``
+    goes *inside* ``Monitor``, so that ``Monitor`` records the episodes the learner sees: a
+    :class:`~sppo_sb3.shield.ShieldWrapper` that ends an episode at an intervention (``on_intervention="absorb"``)
+    would otherwise end it above ``Monitor``, whose next ``reset`` drops the episode and its violations.
 
     :param env_id: a registered id or a callable returning an env.
     :param n_envs: number of envs.
     :param monitor_kwargs: keyword arguments of ``Monitor``.
+    :param wrapper_class: a wrapper of each env, inside ``Monitor`` (rl-zoo3's ``env_wrapper``).
+    :param wrapper_kwargs: keyword arguments of ``wrapper_class``.
     """
     monitor_kwargs = dict(monitor_kwargs or {})
     keywords = tuple(monitor_kwargs.get("info_keywords", ()))
     monitor_kwargs["info_keywords"] = keywords + tuple(k for k in COST_INFO_KEYWORDS if k not in keywords)
-    return make_vec_env(with_episode_cost(env_id), n_envs, monitor_kwargs=monitor_kwargs, **kwargs)
+    factory = with_episode_cost(env_id, wrapper_class, wrapper_kwargs)
+    return make_vec_env(factory, n_envs, monitor_kwargs=monitor_kwargs, **kwargs)
 
 
 class CostEvalCallback(EvalCallback):
