@@ -44,7 +44,7 @@ class LatentModelRule(RefinableRule):
     **Binding.** The rule reads TOLD from the model it shields: ``SPPO(shield=LatentModelRule(...))`` binds it to its
     own TOLD (:meth:`bind`) when it builds (or loads) the policy; an unbound rule raises rather than decide. Before its
     heads have learned anything ``Ā = 0`` everywhere: nothing is shielded, so it protects only once it has seen the
-    task, as every learned rule (``SPPO(refine_shield=True)`` fits it on ``B`` every training round).
+    task, as every learned rule (SPPO fits it on ``B`` every training round: ``refine_shield="auto"``).
 
     **What it keeps.** ``Ā(s, ζ(s)) = 0`` exactly: both terms are rolled in batches of one shape, so the backup is never
     shielded (Proposition 1). With ``Q̄`` within ``δ`` of the true ``Q̄^ζ`` the rule is ``(β + (1 + γ)δ)``-adoptable

@@ -89,7 +89,7 @@ class RefinableRule(ShieldingRule):
     """A rule that learns from the real transitions of ``B`` (Alg. 1 line 12) with a known backup ``ζ``.
 
     What its learners share: the spaces, the user's backup, ``γ``, the observations' running statistics, the checks of
-    a batch's shapes and the minibatch sampling. ``SPPO(refine_shield=True)`` calls :meth:`refine` on a minibatch of
+    a batch's shapes and the minibatch sampling. SPPO (``refine_shield="auto"``) calls :meth:`refine` on a minibatch of
     ``B`` once per TOPO update.
 
     :param observation_space: the env's flat Box observation space; the rule reads raw observations.
@@ -186,7 +186,7 @@ class LearnedCostCriticRule(RefinableRule):
     Because values are capped at ``γ``, a wide band ``α`` saturates ``Q̄`` near the unsafe set, where the shield then
     cannot rank actions any more (``Ā = 0``): prefer ``α = 0`` or a narrow band, or pass
     :func:`definition2_step_costs` (``γ (1 - γ) ĉ``, and ``γ`` on a violation), which gives the model-based rules'
-    ``Q̄`` on Definition 2's scale; ``SPPO(refine_shield=True)`` does. ``done`` must be termination only, not a
+    ``Q̄`` on Definition 2's scale; SPPO (``refine_shield="auto"``) does. ``done`` must be termination only, not a
     time-limit truncation.
 
     A learned ``Q̄`` carries approximation error, so with ``η = 0`` tiny positive ``Ā`` between equally safe actions

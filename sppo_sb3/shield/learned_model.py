@@ -33,7 +33,7 @@ class LearnedDynamicsRule(RefinableRule):
     The sum runs ``horizon`` steps and is absorbed where the model's state enters the unsafe set (``ĉ = 1`` forever:
     ``γ^(t+1) / (1 - γ)``), as the model-based rules' (eq. 18's shaped cost, on the shaped scale). ``f`` is an MLP on
     standardised ``[s, a]`` predicting the standardised change of the observation, fitted by least squares on real
-    transitions (:meth:`update`; ``SPPO(refine_shield=True)`` calls :meth:`refine` on ``B`` every training round).
+    transitions (:meth:`update`; SPPO calls :meth:`refine` on ``B`` every training round, ``refine_shield="auto"``).
     Before it has learned anything it predicts no change, so nothing is shielded that was not unsafe already.
 
     **What it keeps.** With a model of one-step error ``ε`` the rolled ``Q̄`` is within some ``δ`` of the true

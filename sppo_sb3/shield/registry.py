@@ -25,7 +25,7 @@ from sppo_sb3.shield.velocity import velocity_shielding_rule
 
 #: a variant of a task's rule, named ``"<env id>:<variant>"``: pass the name as ``shield`` to train with it
 PAPER_POINT_RULE = "SafePointCircle-v0:paper"
-#: the Point Robot's rule without its model: the dynamics learned, for [learned]'s measurements (``refine_shield=True``)
+#: the Point Robot's rule without its model: the dynamics learned, for [learned]'s measurements (SPPO refines it)
 LEARNED_POINT_RULE = "SafePointCircle-v0:learned"
 #: the Point Robot's rule on SPPO's own TOLD: cost and backup heads learned on its latents (SPPO only)
 LATENT_POINT_RULE = "SafePointCircle-v0:latent"
@@ -35,7 +35,7 @@ def learned_point_rule(**kwargs: Any) -> LearnedDynamicsRule:
     """The Point rule's backup, constraint and band on a learned model of the dynamics; ``kwargs`` override.
 
     What a user without the Point Robot's equations would build: a :class:`LearnedDynamicsRule` that ``SPPO`` fits on
-    its buffer (``refine_shield=True``), rolled for long enough to stop from full speed.
+    its buffer (``refine_shield="auto"``), rolled for long enough to stop from full speed.
     """
     env, model_rule = SafePointCircleEnv(), PointCircleShieldingRule()
     settings = {"alpha": model_rule.alpha, "horizon": model_rule.horizon + 10, **kwargs}
@@ -62,8 +62,8 @@ def latent_point_rule(**kwargs: Any) -> LatentModelRule:
 SHIELDING_RULES: dict[str, Callable[..., ShieldingRule]] = {
     "SafePointCircle-v0": PointCircleShieldingRule,
     PAPER_POINT_RULE: paper_point_rule,  # the paper's and SAILR's: brake both axes, band 0.5 (Table I's first rows)
-    LEARNED_POINT_RULE: learned_point_rule,  # no model: the dynamics learned from B (refine_shield=True)
-    LATENT_POINT_RULE: latent_point_rule,  # no model: Q̄ rolled on SPPO's own TOLD (SPPO, refine_shield=True)
+    LEARNED_POINT_RULE: learned_point_rule,  # no model: the dynamics learned from B (SPPO refines it)
+    LATENT_POINT_RULE: latent_point_rule,  # no model: Q̄ rolled on SPPO's own TOLD (SPPO only)
     "SafeHalfCheetahHeight-v1": HalfCheetahHeightShieldingRule,
     **{task.env_id: functools.partial(velocity_shielding_rule, task) for task in VELOCITY_TASKS},
 }
