@@ -13,10 +13,13 @@ optimum is to swing as high as the speed limit allows. The rule (see the README'
 - rewards shifted to [0, 1] so that the absorbing reward ``R̃ = -1`` is worse than carrying on (with Pendulum's own
   rewards, -16..0 per step, ending the episode through an intervention is cheaper than continuing).
 
+Without Pendulum's equations, only the brake and the speed limit known: ``shield="ConstrainedPendulum-v0:learned"``
+(:func:`learned_pendulum_rule`, the dynamics learned from SPPO's buffer).
+
 Run ``python examples/constrained_pendulum.py`` (SPPO with and without the shield, and SB3's SAC behind
-``ShieldWrapper``); with the zoo CLI: ``sppo-train --algo sppo --env ConstrainedPendulum-v0 --gym-packages
-constrained_pendulum -conf hyperparams/sppo.yml`` from the ``examples/`` folder (``--gym-packages`` imports the module,
-which registers the env and its rule).
+``ShieldWrapper``); with the zoo CLI, from the repository root: ``sppo-train --algo sppo --env ConstrainedPendulum-v0
+--gym-packages examples.constrained_pendulum -conf hyperparams/sppo.yml`` (``--gym-packages`` imports the module,
+which registers the env and its rules).
 """
 
 from __future__ import annotations
