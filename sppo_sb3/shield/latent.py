@@ -14,8 +14,8 @@ are detached), so the shield cannot alter what TOPO learns.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, Protocol
 
 import gymnasium as gym
 import numpy as np
@@ -26,10 +26,22 @@ from torch import nn
 from sppo_sb3.shield.base import advantage_from_values
 from sppo_sb3.shield.learned import INITIAL_LOGIT, BackupPolicy, CostTransitions, RefinableRule, mlp
 
-if TYPE_CHECKING:  # the rule reads TOLD's interface; importing sppo here would import the shield back
-    from sppo_sb3.sppo.policies import TOLD
-
 ObservationTransform = Callable[[np.ndarray], np.ndarray]
+
+
+class LatentDynamics(Protocol):
+    """What the rule reads of a world model: SPPO's TOLD (eq. 9) has it; the shield layer does not import SPPO."""
+
+    latent_dim: int
+
+    def encode(self, obs: th.Tensor) -> th.Tensor:
+        """``z = h(s)``."""
+
+    def next_latent(self, z: th.Tensor, action: th.Tensor) -> th.Tensor:
+        """``z' = d(z, a)``."""
+
+    def parameters(self) -> Iterator[nn.Parameter]:
+        """Its weights (the rule's heads follow them to their device)."""
 
 
 class LatentModelRule(RefinableRule):
@@ -82,7 +94,7 @@ class LatentModelRule(RefinableRule):
             raise ValueError(f"horizon must be at least 1 step, got {horizon}.")
         self.horizon, self.net_arch, self.lr = int(horizon), tuple(int(n) for n in net_arch), float(lr)
         self.device, self.seed = get_device(device), seed
-        self.model: TOLD | None = None
+        self.model: LatentDynamics | None = None
         self.latent_dim: int | None = None
         self.transform: ObservationTransform | None = None
         self.cost_head: nn.Sequential | None = None
@@ -90,7 +102,7 @@ class LatentModelRule(RefinableRule):
         self.optimizer: th.optim.Optimizer | None = None
 
     # ----------------------------------------------------------------------------------------------- binding
-    def bind(self, model: TOLD, transform: ObservationTransform | None = None) -> None:
+    def bind(self, model: LatentDynamics, transform: ObservationTransform | None = None) -> None:
         """Roll on ``model`` (a TOLD); ``transform`` maps raw observations to its inputs (e.g. VecNormalize's).
 
         The heads are built on the first bind (their sizes follow TOLD's latent) and kept on the next ones, so a loaded
