@@ -203,7 +203,6 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         if refine_shield not in (True, False, "auto"):
             raise ValueError(f'refine_shield is True, False or "auto" (refine a learnable rule); got {refine_shield!r}.')
         self.refine_shield = refine_shield if refine_shield == "auto" else bool(refine_shield)
-        self.refines_shield = False  # resolved against the rule in _setup_model
         if not 0.0 <= refine_backup_fraction <= 1.0:
             raise ValueError(
                 f"refine_backup_fraction is a share of the warm-up steps, in [0, 1]; got {refine_backup_fraction}."
@@ -243,13 +242,17 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
                 "(sppo_sb3.shield.LearnedDynamicsRule, LatentModelRule or LearnedCostCriticRule with your backup policy), "
                 f'got {self.shield_rule!r}. Pass shield=LearnedDynamicsRule(...) or refine_shield="auto".'
             )
-        self.refines_shield = learnable and self.refine_shield is not False
         if isinstance(self.shield_rule, LatentModelRule):  # it rolls Q̄ on this model's TOLD
             self.shield_rule.bind(self.policy.model, self._told_inputs)
         self._setup_compiled()
         if self.safety_metrics is None:
             self.safety_metrics = SafetyMetrics(self.n_envs, window=self._stats_window_size)
         self.safety_metrics.resize(self.n_envs)
+
+    @property
+    def refines_shield(self) -> bool:
+        """Whether :meth:`train` fits the rule on ``B``: a learnable rule, unless ``refine_shield=False``."""
+        return isinstance(self.shield_rule, RefinableRule) and self.refine_shield is not False
 
     def _told_inputs(self, raw_obs: np.ndarray) -> np.ndarray:
         """Raw observations as TOLD reads them: normalised where the env is wrapped in ``VecNormalize``."""
