@@ -64,7 +64,7 @@ def test_paper_plan_scales_the_measured_runs_to_the_paper_grid(results: Path) ->
     # SPPO's Cheetah run ran as fast as Point's seed 0; Point's seed 1 ran slower, so Point's runs cost more
     assert paper.loc[(CHEETAH, "sppo"), "run_s"] < paper.loc[(POINT, "sppo"), "run_s"]
     for task, seeds in plan.PAPER_SEEDS.items():  # core-hours: all the grid's seeds of the pair
-        assert paper.loc[(task, "sppo"), "core_hours"] == pytest.approx(seeds * paper.loc[(task, "sppo"), "run_s"] / 3600)
+        assert paper.loc[(task, "sppo"), "core_hours"] == pytest.approx(len(seeds) * paper.loc[(task, "sppo"), "run_s"] / 3600)
     # a run's cost grows with the env steps at the measured rate
     longer = plan.grid_plan(throughput, steps=2 * plan.PAPER_STEPS).set_index(["task", "algo"])
     extra = longer["run_s"] - paper["run_s"]
@@ -111,7 +111,7 @@ def test_velocity_plan_counts_the_runs_left(tmp_path: Path, capsys: pytest.Captu
     text = capsys.readouterr().out
     assert f"{grid.VELOCITY_STEPS:,} env steps per run" in text
     summaries = plan.load_summaries(tmp_path)
-    seeds = dict.fromkeys(grid.VELOCITY_TASKS, grid.DEFAULT_SEEDS)
+    seeds = dict.fromkeys(grid.VELOCITY_TASKS, range(grid.DEFAULT_SEEDS))
     expected = plan.grid_plan(plan.measured_throughput(summaries), seeds, ["sppo", "pdo"], grid.VELOCITY_STEPS, summaries)
     left = expected.set_index(["task", "algo"])["left"]
     assert (left[(hopper, "sppo")], left[(cheetah, "sppo")], left[(cheetah, "pdo")]) == (2, 3, 2)
@@ -120,6 +120,17 @@ def test_velocity_plan_counts_the_runs_left(tmp_path: Path, capsys: pytest.Captu
     total = f"| {int(measured['left'].sum())} runs | **{measured['left_core_hours'].sum():,.1f}** |"
     assert total in text and int(measured["left"].sum()) == 2 + 3 + 2  # only the measured pairs are costed
     assert "Wall clock of the runs left on 2 cores:" in text
+
+
+def test_velocity_plan_counts_only_the_seeds_asked_for(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--first-seed 1 --seeds 1``: seed 0's finished run measures the rate but does not stand in for seed 1."""
+    hopper = grid.VELOCITY_TASKS[1]
+    _write_run(tmp_path, hopper, "sppo", 0, grid.VELOCITY_STEPS, 2000.0, 60.0)
+    argv = ["--plan", "--velocity", "--algos", "sppo", "--tasks", hopper, "--out", str(tmp_path), "--workers", "1"]
+    assert benchmark.main([*argv, "--first-seed", "1", "--seeds", "1"]) == 0
+    assert "| 1 runs |" in capsys.readouterr().out
+    assert benchmark.main([*argv, "--seeds", "1"]) == 0  # seed 0 alone: done
+    assert "| 0 runs |" in capsys.readouterr().out
 
 
 def test_the_velocity_budget_is_the_yml_files() -> None:

@@ -175,7 +175,7 @@ def print_plan(args: argparse.Namespace) -> int:
     throughput = plan.measured_throughput(summaries)
     if args.velocity:
         steps = grid_steps(args, tasks)[0] or grid.VELOCITY_STEPS
-        grid_plan = plan.grid_plan(throughput, dict.fromkeys(tasks, len(seeds)), algos, steps, finished=summaries)
+        grid_plan = plan.grid_plan(throughput, dict.fromkeys(tasks, seeds), algos, steps, finished=summaries)
     else:
         steps = plan.PAPER_STEPS
         grid_plan = plan.grid_plan(throughput, finished=summaries)

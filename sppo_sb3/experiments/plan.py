@@ -10,7 +10,7 @@ train command with one thread (``--num-threads 1``, ``OMP_NUM_THREADS=1``) on th
 from __future__ import annotations
 
 import heapq
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +21,7 @@ from sppo_sb3.experiments.display import algo_sort_key, display_name, task_title
 from sppo_sb3.experiments.grid import OUR_ALGOS
 
 #: the paper's seeds per task: Point Robot (Table I) 8, Half-Cheetah (Table II) 5
-PAPER_SEEDS: dict[str, int] = {"SafePointCircle-v0": 8, "SafeHalfCheetahHeight-v1": 5}
+PAPER_SEEDS: dict[str, range] = {"SafePointCircle-v0": range(8), "SafeHalfCheetahHeight-v1": range(5)}
 #: the paper's env steps per run
 PAPER_STEPS = 1_000_000
 #: the paper's algorithms
@@ -83,7 +83,7 @@ def _span(steps: np.ndarray) -> str:
 
 def grid_plan(
     throughput: pd.DataFrame,
-    seeds_per_task: dict[str, int] | None = None,
+    seeds_per_task: Mapping[str, Sequence[int]] | None = None,
     algos: Sequence[str] = PAPER_ALGOS,
     steps: int = PAPER_STEPS,
     finished: pd.DataFrame | None = None,
@@ -93,29 +93,30 @@ def grid_plan(
 
     :param throughput: :func:`measured_throughput`'s output.
     :param seeds_per_task: the grid's tasks, in table order, and their seeds (default: the paper's, :data:`PAPER_SEEDS`).
+        A finished run counts as done only for a seed listed here.
     :param algos: the grid's algorithms.
     :param steps: env steps per run.
     :param finished: ``summary.json`` rows of finished runs: those of ``steps`` env steps or more are done (``None``: none).
     :return: :func:`measured_throughput`'s columns (NaN where not measured), ``grid_seeds``, ``left`` (runs not yet
         finished), ``run_s``, ``core_hours`` and ``left_core_hours``.
     """
-    seeds_per_task = PAPER_SEEDS if seeds_per_task is None else seeds_per_task
-    pairs = [(task, algo) for task in seeds_per_task for algo in sorted(algos, key=algo_sort_key)]
+    seeds: Mapping[str, Sequence[int]] = PAPER_SEEDS if seeds_per_task is None else seeds_per_task
+    pairs = [(task, algo) for task in seeds for algo in sorted(algos, key=algo_sort_key)]
     plan = pd.DataFrame(pairs, columns=["task", "algo"]).merge(throughput, on=["task", "algo"], how="left")
-    plan["grid_seeds"] = [seeds_per_task[task] for task in plan["task"]]
-    done = pd.Series(dtype=int) if finished is None or finished.empty else finished_runs(finished, steps)
-    plan["left"] = [max(0, n - int(done.get((t, a), 0))) for t, a, n in zip(plan["task"], plan["algo"], plan["grid_seeds"])]
+    plan["grid_seeds"] = [len(seeds[task]) for task in plan["task"]]
+    done = set() if finished is None or finished.empty else finished_runs(finished, steps)
+    plan["left"] = [sum((t, a, seed) not in done for seed in seeds[t]) for t, a in zip(plan["task"], plan["algo"])]
     plan["run_s"] = plan["fixed_s"] + steps * plan["s_per_step"]
     plan["core_hours"] = plan["grid_seeds"] * plan["run_s"] / 3600.0
     plan["left_core_hours"] = plan["left"] * plan["run_s"] / 3600.0
     return plan
 
 
-def finished_runs(summaries: pd.DataFrame, steps: int) -> pd.Series:
-    """Finished runs of at least ``steps`` env steps (an on-policy run ends with its last full rollout) per
-    ``(task, algo)``."""
+def finished_runs(summaries: pd.DataFrame, steps: int) -> set[tuple[str, str, int]]:
+    """The ``(task, algo, seed)`` of the finished runs of at least ``steps`` env steps (an on-policy run ends with its
+    last full rollout)."""
     at_budget = summaries[summaries["steps"].astype(int) >= steps]
-    return at_budget.groupby(["task", "algo"]).size()
+    return {(task, algo, int(seed)) for task, algo, seed in zip(at_budget["task"], at_budget["algo"], at_budget["seed"])}
 
 
 def makespan_s(durations: Sequence[float] | np.ndarray, workers: int) -> float:
