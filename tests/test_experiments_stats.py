@@ -146,6 +146,27 @@ def test_figures_draw_intervals(tmp_path: Path) -> None:
         assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_a_variants_band_has_its_lines_colour() -> None:
+    """A variant has no colour of its own (matplotlib picks the next): its band must take its line's, not the next one."""
+    pytest.importorskip("matplotlib")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import to_rgb
+
+    rng = np.random.default_rng(2)
+    band = stats.curve_band(_curves(rng.standard_normal((3, 30))), "return", 30)
+    fig, ax = plt.subplots()
+    for label in ("sppo-learned", "sppo-unshielded"):
+        figures.plot_band(ax, band, 1, None, label)
+    lines, bands = ax.get_lines(), ax.collections
+    assert to_rgb(lines[0].get_color()) != to_rgb(lines[1].get_color())
+    for line, area in zip(lines, bands):
+        assert to_rgb(area.get_facecolor()[0]) == to_rgb(line.get_color())
+    plt.close(fig)
+
+
 def test_training_return_mean_is_the_curves_mean_height_and_rewards_learning_sooner() -> None:
     steps = np.array([100, 200, 300, 400, 500])
     linear = pd.DataFrame({"timesteps": steps, "return": [0.0, 25.0, 50.0, 75.0, 100.0]})

@@ -47,6 +47,21 @@ def _panels(plt: Any, n: int) -> tuple[Any, list[Any]]:
     return fig, flat[:n]
 
 
+def plot_band(ax: Any, band: pd.DataFrame, steps_per_step: int, color: str | None, label: str) -> None:
+    """The mean line and its 95% CI band, in one colour: with ``color=None`` (a variant) the band takes the colour
+    matplotlib chose for the line.
+
+    :param ax: the panel.
+    :param band: :func:`~sppo_sb3.experiments.stats.curve_band`'s output.
+    :param steps_per_step: env steps per agent step (action repeat).
+    :param color: the line's colour (``None``: matplotlib's next one).
+    :param label: the legend's entry.
+    """
+    steps = band["timesteps"] * steps_per_step
+    (line,) = ax.plot(steps, band["mean"], color=color, label=label, lw=1.6)
+    ax.fill_between(steps, band["ci_low"], band["ci_high"], color=line.get_color(), alpha=0.2, lw=0)
+
+
 def plot_curves(
     curves: dict[tuple[str, str], list[pd.DataFrame]],
     tasks: Sequence[str],
@@ -78,12 +93,9 @@ def plot_curves(
             band = curve_band(curves[(task, algo)], column, points, smooth)
             if band.empty:
                 continue
-            color = algo_color(algo)
             n_seeds = len(curves[(task, algo)])
             label = f"{display_name(algo)} ({n_seeds} seed{'s' if n_seeds != 1 else ''})"
-            steps = band["timesteps"] * env_steps_per_step(task)
-            ax.plot(steps, band["mean"], color=color, label=label, lw=1.6)
-            ax.fill_between(steps, band["ci_low"], band["ci_high"], color=color, alpha=0.2, lw=0)
+            plot_band(ax, band, env_steps_per_step(task), algo_color(algo), label)
         ax.set_title(task_title(task), fontsize=10)
         ax.set_xlabel("env steps" if env_steps_per_step(task) == 1 else "env steps (action repeat included)")
         ax.set_ylabel(ylabel)
