@@ -149,12 +149,9 @@ def test_figures_draw_intervals(tmp_path: Path) -> None:
 def test_a_variants_band_has_its_lines_colour() -> None:
     """A variant has no colour of its own (matplotlib picks the next): its band must take its line's, not the next one."""
     pytest.importorskip("matplotlib")
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.colors import to_rgb
 
+    plt = figures._pyplot()  # the figures' own backend set-up
     rng = np.random.default_rng(2)
     band = stats.curve_band(_curves(rng.standard_normal((3, 30))), "return", 30)
     fig, ax = plt.subplots()
