@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from sppo_sb3.envs.velocity import ANT
 from sppo_sb3.experiments import layout, plot, stats
 from sppo_sb3.experiments.velocity import (
     OMNISAFE_VELOCITY,
@@ -16,6 +17,7 @@ from sppo_sb3.experiments.velocity import (
     seed_efficiency,
     steps_to_return,
     target_return,
+    velocity_overview_markdown,
     velocity_tables_markdown,
 )
 
@@ -63,10 +65,10 @@ def test_efficiency_table_averages_over_the_seeds_that_reached_it() -> None:
     assert table.loc["sppo", "reached"] == 0 and np.isnan(table.loc["sppo", "steps"])
 
 
-def _write_run(root: Path, algo: str, seed: int, returns: list[float], costs: list[float]) -> None:
-    run_dir = layout.run_dir_for(root, TARGET_TASK, algo, seed)
+def _write_run(root: Path, algo: str, seed: int, returns: list[float], costs: list[float], task: str = TARGET_TASK) -> None:
+    run_dir = layout.run_dir_for(root, task, algo, seed)
     run_dir.mkdir(parents=True)
-    summary = {"task": TARGET_TASK, "algo": algo, "variant": "", "seed": seed, "steps": EPISODE * len(returns)}
+    summary = {"task": task, "algo": algo, "variant": "", "seed": seed, "steps": EPISODE * len(returns)}
     summary |= {"episodes": len(returns), "return_last_n": float(np.mean(returns[-10:])), "safety_rate": 50.0}
     summary |= {"cumulative_violations": int(sum(costs)), "wall_clock_s": 600.0, "eval_unshielded_violations": 1.5}
     summary |= {"eval_unshielded_return": 2500.0, "cumulative_interventions": 7 if algo == "sppo" else None}
@@ -91,13 +93,34 @@ def test_velocity_tables_put_omnisafes_published_rows_beside_ours(tmp_path: Path
     assert lines.index(ours) < lines.index(published[0])
 
 
+def test_velocity_overview_sets_sppo_against_the_best_of_the_others(tmp_path: Path) -> None:
+    for seed in (0, 1):  # HalfCheetah: SPPO 700 against SACLag's 1750 over 2 seeds
+        _write_run(tmp_path, "saclag", seed, [1000.0, 2500.0], [10.0, 0.0])
+        _write_run(tmp_path, "sppo", seed, [500.0, 900.0], [0.0, 0.0])
+    _write_run(tmp_path, "sppo", 0, [300.0], [0.0], task=ANT.env_id)  # Ant: SPPO 300 against CPO's 200, one seed each
+    _write_run(tmp_path, "cpo", 0, [200.0], [4.0], task=ANT.env_id)
+    summaries, _ = stats.load_results(tmp_path)
+    lines = velocity_overview_markdown(stats.aggregate(summaries)).splitlines()
+    assert "| Task | CPO | SACLag | SPPO (ours) | Best of the others | SPPO ≥ it? |" in lines
+    assert "| Ant velocity | 200, cost 4, 1 seed | – | 300, cost 0, 1 seed | CPO 200 | yes |" in lines
+    cheetah = next(line for line in lines if line.startswith("| HalfCheetah velocity"))
+    assert cheetah.endswith("| 700 [700, 700], cost 0, 2 seeds | SACLag 1750 | no |")
+    assert "SPPO's mean is at or above the best of the others on 1 of 2 tasks." in lines
+
+
 def test_plot_results_velocity_mode_writes_its_figures_and_tables(tmp_path: Path) -> None:
     pytest.importorskip("matplotlib")
     _write_run(tmp_path, "sac", 0, [1000.0, 3000.0, 3500.0], [0.0, 400.0, 900.0])
     _write_run(tmp_path, "sppo", 0, [200.0, 400.0, 600.0], [0.0, 0.0, 0.0])
     out = tmp_path / "figures"
     assert plot.main([str(tmp_path), "--out", str(out), "--velocity"]) == 0
-    for name in ("learning_curves.png", "cumulative_cost.png", "velocity_tables.md", "sample_efficiency.png"):
+    for name in (
+        "learning_curves.png",
+        "cumulative_cost.png",
+        "velocity_tables.md",
+        "velocity_overview.md",
+        "sample_efficiency.png",
+    ):
         assert (out / name).is_file(), name
     efficiency = (out / "sample_efficiency.md").read_text()
     assert "| SAC | 1 of 1 | 3000 | 0.1 | 1300 | 1300 |" in efficiency  # the window's mean reaches 2267 at episode 3

@@ -22,6 +22,7 @@ from sppo_sb3.experiments.velocity import (
     efficiency_table,
     seed_efficiency,
     target_return,
+    velocity_overview_markdown,
     velocity_tables_markdown,
 )
 
@@ -93,7 +94,8 @@ def write_velocity_figures(
     plot_curves(with_cost, tasks, "return", "episode return", out / "learning_curves.png", args.points, args.smooth, args.dpi)
     plot_curves(with_cost, tasks, "cumulative_cost", "cumulative training cost", out / "cumulative_cost.png", args.points)
     (out / "velocity_tables.md").write_text(velocity_tables_markdown(table))
-    written = ["learning_curves.png", "cumulative_cost.png", "velocity_tables.md"]
+    (out / "velocity_overview.md").write_text(velocity_overview_markdown(table))
+    written = ["learning_curves.png", "cumulative_cost.png", "velocity_tables.md", "velocity_overview.md"]
     if TARGET_TASK in tasks:
         target = target_return()
         runs = seed_efficiency(curves, TARGET_TASK, target)

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from sppo_sb3.envs.velocity import ANT, HALF_CHEETAH, HOPPER, SWIMMER, WALKER2D
-from sppo_sb3.experiments.display import algo_sort_key, display_name, task_title
+from sppo_sb3.experiments.display import VELOCITY_TASK_NAMES, algo_sort_key, display_name, task_title
 from sppo_sb3.experiments.tables import INTERVAL_LEGEND, estimate_cell
 
 #: the OmniSafe commit the published rows were read at
@@ -143,6 +143,52 @@ def velocity_tables_markdown(table: pd.DataFrame) -> str:
         lines += [_our_row(row) for _, row in group.iterrows()]
         lines += [_published_row(row) for row in OMNISAFE_VELOCITY.get(str(task), ())]
         lines.append("")
+    return "\n".join(lines)
+
+
+#: the method the overview sets against the best of the others
+OURS = "sppo"
+
+
+def _overview_cell(row: pd.Series) -> str:
+    """Return of the last 10 training episodes (mean [95% CI] over seeds), mean training cost and seeds."""
+    seeds = int(row["seeds"])
+    mean = row["return_last_n_mean"]
+    returns = estimate_cell(row, "return_last_n", 0) if seeds > 1 else f"{mean:.0f}"
+    return f"{returns}, cost {row['cumulative_violations_mean']:.0f}, {seeds} seed{'s' if seeds > 1 else ''}"
+
+
+def velocity_overview_markdown(table: pd.DataFrame) -> str:
+    """The grid at a glance: per task, every algorithm's final training return and training cost, the best of the
+    other methods, and whether :data:`OURS` is at or above it (on the means).
+
+    :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
+    """
+    algos = sorted(table["algo"].unique(), key=algo_sort_key)
+    header = "| Task |" + "".join(f" {display_name(str(algo))} |" for algo in algos) + " Best of the others | SPPO ≥ it? |"
+    lines = [
+        "<!-- written by scripts/plot_results.py --velocity -->",
+        "Return of the last 10 training episodes (mean [95% CI] over seeds), the training cost paid (mean over seeds)",
+        "and the seeds. The last columns compare the means.",
+        "",
+        header,
+        "|" + "---|" * header.count(" |"),
+    ]
+    at_or_above = compared = 0
+    for task, group in table.groupby("task", sort=True):
+        by_algo = group.set_index("algo")
+        cells = [_overview_cell(by_algo.loc[algo]) if algo in by_algo.index else "–" for algo in algos]
+        others = by_algo.drop(index=OURS, errors="ignore")["return_last_n_mean"].dropna()
+        best, verdict = "–", "–"
+        if len(others):
+            best = f"{display_name(str(others.idxmax()))} {others.max():.0f}"
+        if len(others) and OURS in by_algo.index:
+            compared += 1
+            ours_wins = bool(by_algo.loc[OURS, "return_last_n_mean"] >= others.max())
+            at_or_above += ours_wins
+            verdict = "yes" if ours_wins else "no"
+        lines.append("| " + " | ".join([VELOCITY_TASK_NAMES.get(str(task), str(task)), *cells, best, verdict]) + " |")
+    lines += ["", f"SPPO's mean is at or above the best of the others on {at_or_above} of {compared} tasks.", ""]
     return "\n".join(lines)
 
 
