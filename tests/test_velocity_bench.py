@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pandas as pd
 import pytest
 
+from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY
 from sppo_sb3.envs.velocity import ANT
 from sppo_sb3.experiments import layout, plot, stats
 from sppo_sb3.experiments.velocity import (
@@ -22,6 +26,7 @@ from sppo_sb3.experiments.velocity import (
 )
 
 EPISODE = 1000
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
 
 def _curve(returns: list[float], costs: list[float]) -> pd.DataFrame:
@@ -125,3 +130,39 @@ def test_plot_results_velocity_mode_writes_its_figures_and_tables(tmp_path: Path
     efficiency = (out / "sample_efficiency.md").read_text()
     assert "| SAC | 1 of 1 | 3000 | 0.1 | 1300 | 1300 |" in efficiency  # the window's mean reaches 2267 at episode 3
     assert "| SPPO (ours) | 0 of 1 | – | – | – | 0 |" in efficiency
+
+
+class _FallingEnv(gym.Env):
+    """Falls (terminates) at step 5 of every episode; the step before the last reports an intervention."""
+
+    observation_space = gym.spaces.Box(-1.0, 1.0, (1,))
+    action_space = gym.spaces.Box(-1.0, 1.0, (1,))
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        super().reset(seed=seed)
+        self.t = 0
+        return np.zeros(1, dtype=np.float32), {}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict]:
+        self.t += 1
+        info = {COST_KEY: float(self.t == 2), INTERVENED_KEY: self.t == 3}
+        return np.zeros(1, dtype=np.float32), 1.0, self.t == 5, False, info
+
+
+class _ConstantPolicy:
+    def predict(self, obs: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, None]:
+        return np.zeros(1, dtype=np.float32), None
+
+
+def test_deployment_falls_counts_the_falls_after_an_intervention(monkeypatch: pytest.MonkeyPatch) -> None:
+    spec = importlib.util.spec_from_file_location("deployment_falls", SCRIPTS / "deployment_falls.py")
+    assert spec is not None and spec.loader is not None
+    falls = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, falls)  # its dataclass looks its module up
+    spec.loader.exec_module(falls)
+    deployment = falls.deploy(_ConstantPolicy(), _FallingEnv(), episodes=3, seed=0)
+    assert deployment.lengths == [5, 5, 5] and deployment.falls == [True] * 3 and deployment.gaps == [2, 2, 2]
+    assert deployment.costs == [1, 1, 1] and deployment.interventions == [1, 1, 1] and deployment.returns == [5.0] * 3
+    report = deployment.report("with the shield")
+    assert report.startswith("with the shield: return 5.0, length 5.0, fell in 3 of 3 episodes, cost 1.0 and 1.0")
+    assert "3 falls came after an intervention: 3 within 10 steps of it (median 2 steps)" in report
