@@ -2,7 +2,7 @@
 
 On tasks that end an episode when the robot falls (Hopper, Walker2d, Ant), a low return can come from the policy or
 from the shield's backup, which minimises the constraint's cost and nothing else. This script deploys a saved model
-(its own shield off, as :func:`~sppo_sb3.evaluation.evaluate_deployment` does) for ``--episodes`` deterministic
+(its own shield off, with :func:`~sppo_sb3.evaluation.run_episode`) for ``--episodes`` deterministic
 episodes, once as it is and once through :class:`~sppo_sb3.shield.ShieldWrapper` with the model's rule, and prints per
 deployment the mean return, episode length, the episodes that ended by termination (a fall), the cost and the
 interventions per episode; for the shielded one, how many steps before each fall the last intervention was. The
@@ -25,8 +25,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.algorithms import ALGORITHMS
-from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY
-from sppo_sb3.evaluation import deployment_rule, own_shield_off
+from sppo_sb3.evaluation import deployment_rule, run_episode
 from sppo_sb3.shield.wrapper import ShieldWrapper
 
 #: a fall "follows" an intervention when it comes within this many steps of it
@@ -64,24 +63,14 @@ class Deployment:
 def deploy(model: BaseAlgorithm, env: gym.Env, episodes: int, seed: int) -> Deployment:
     """Run ``model``'s deterministic actions in ``env`` for ``episodes`` episodes (seeds ``seed``, ``seed + 1``, ...)."""
     out = Deployment()
-    with own_shield_off(model):
-        for episode in range(episodes):
-            obs, _ = env.reset(seed=seed + episode)
-            steps, last, total, cost, shielded, done, terminated = 0, None, 0.0, 0, 0, False, False
-            while not done:
-                action, _ = model.predict(obs, deterministic=True)
-                obs, reward, terminated, truncated, info = env.step(action)
-                steps, total, cost = steps + 1, total + float(reward), cost + int(float(info.get(COST_KEY, 0.0)) > 0)
-                if info.get(INTERVENED_KEY, False):
-                    last, shielded = steps, shielded + 1
-                done = terminated or truncated
-            out.returns.append(total)
-            out.lengths.append(steps)
-            out.falls.append(bool(terminated))
-            out.costs.append(cost)
-            out.interventions.append(shielded)
-            if terminated and last is not None:
-                out.gaps.append(steps - last)
+    for episode in (run_episode(model, env, seed + index) for index in range(episodes)):
+        out.returns.append(episode.reward)
+        out.lengths.append(episode.length)
+        out.falls.append(episode.terminated)
+        out.costs.append(episode.violations)
+        out.interventions.append(len(episode.intervention_steps))
+        if episode.terminated and episode.intervention_steps:
+            out.gaps.append(episode.length - episode.intervention_steps[-1])
     return out
 
 

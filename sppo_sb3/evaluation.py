@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -49,6 +50,57 @@ def deployment_rule(model: BaseAlgorithm) -> ShieldingRule | None:
     return rule
 
 
+@dataclass
+class Episode:
+    """One deployed episode.
+
+    :param reward: its return.
+    :param length: its steps.
+    :param terminated: whether it ended by termination (not by truncation).
+    :param violations: its steps with a positive cost.
+    :param intervention_steps: the steps (1-based) at which a shield overrode the action.
+    """
+
+    reward: float
+    length: int
+    terminated: bool
+    violations: int
+    intervention_steps: list[int]
+
+
+def run_episode(
+    model: BaseAlgorithm,
+    env: gym.Env,
+    seed: int | None,
+    deterministic: bool = True,
+    vec_normalize: VecNormalize | None = None,
+) -> Episode:
+    """Run the policy's own actions (its own shield off) for one episode of ``env``.
+
+    :param model: a trained algorithm.
+    :param env: one env (raw observations, ``info["cost"]``, and ``info["intervened"]`` where it is shielded).
+    :param seed: seed of the reset (``None``: continue the env's RNG).
+    :param deterministic: deterministic actions.
+    :param vec_normalize: the ``VecNormalize`` the model was trained under (see :func:`evaluate_deployment`).
+    """
+    obs, _ = env.reset(seed=seed)
+    reward, steps, violations, intervention_steps = 0.0, 0, 0, []
+    state: Any = None
+    done, terminated, start = False, False, np.array([True])
+    with own_shield_off(model):
+        while not done:
+            policy_obs = obs if vec_normalize is None else vec_normalize.normalize_obs(obs)
+            action, state = model.predict(policy_obs, state=state, episode_start=start, deterministic=deterministic)
+            obs, step_reward, terminated, truncated, info = env.step(action)
+            start, steps = np.array([False]), steps + 1
+            reward += float(step_reward)
+            violations += int(float(info.get(COST_KEY, 0.0)) > 0)
+            if info.get(INTERVENED_KEY, False):
+                intervention_steps.append(steps)
+            done = terminated or truncated
+    return Episode(reward, steps, bool(terminated), violations, intervention_steps)
+
+
 def evaluate_deployment(
     model: BaseAlgorithm,
     make_env: Callable[[], gym.Env],
@@ -80,27 +132,15 @@ def evaluate_deployment(
     rule = deployment_rule(model)
     if shielded and rule is not None:
         env = ShieldWrapper(env, rule)
-    returns, violations, interventions = [], [], []
-    with own_shield_off(model):
-        for episode in range(n_eval_episodes):
-            obs, _ = env.reset(seed=seed if episode == 0 else None)
-            totals = np.zeros(3)
-            state: Any = None
-            done, start = False, np.array([True])
-            while not done:
-                policy_obs = obs if vec_normalize is None else vec_normalize.normalize_obs(obs)
-                action, state = model.predict(policy_obs, state=state, episode_start=start, deterministic=deterministic)
-                obs, reward, terminated, truncated, info = env.step(action)
-                start = np.array([False])
-                totals += (float(reward), float(info.get(COST_KEY, 0.0)) > 0, bool(info.get(INTERVENED_KEY, False)))
-                done = terminated or truncated
-            returns.append(totals[0])
-            violations.append(totals[1])
-            interventions.append(totals[2])
+    episodes = [
+        run_episode(model, env, seed if episode == 0 else None, deterministic, vec_normalize)
+        for episode in range(n_eval_episodes)
+    ]
     env.close()
+    violations = np.array([episode.violations for episode in episodes])
     return {
-        "mean_reward": float(np.mean(returns)),
+        "mean_reward": float(np.mean([episode.reward for episode in episodes])),
         "mean_violations": float(np.mean(violations)),
-        "safe_episode_rate": 100.0 * float(np.mean(np.asarray(violations) == 0)),
-        "mean_interventions": float(np.mean(interventions)),
+        "safe_episode_rate": 100.0 * float(np.mean(violations == 0)),
+        "mean_interventions": float(np.mean([len(episode.intervention_steps) for episode in episodes])),
     }

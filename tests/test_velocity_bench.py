@@ -150,7 +150,7 @@ class _FallingEnv(gym.Env):
 
 
 class _ConstantPolicy:
-    def predict(self, obs: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, None]:
+    def predict(self, obs: np.ndarray, **kwargs: object) -> tuple[np.ndarray, None]:
         return np.zeros(1, dtype=np.float32), None
 
 
