@@ -18,6 +18,8 @@ from sppo_sb3.experiments.velocity import (
     OMNISAFE_VELOCITY,
     TARGET_TASK,
     efficiency_table,
+    late_episodes,
+    late_episodes_markdown,
     seed_efficiency,
     steps_to_return,
     target_return,
@@ -68,6 +70,29 @@ def test_efficiency_table_averages_over_the_seeds_that_reached_it() -> None:
     single = efficiency_table(seed_efficiency({(TARGET_TASK, "sac"): [_curve([3000.0], [4.0])]}, TARGET_TASK, target))
     assert single.loc[0, "reached"] == 1 and single.loc[0, "steps"] == 1000.0 and single.loc[0, "cost"] == 4.0
     assert table.loc["sppo", "reached"] == 0 and np.isnan(table.loc["sppo", "steps"])
+
+
+def _episodes(lengths: list[int], returns: list[float], costs: list[float]) -> pd.DataFrame:
+    """A learning curve of episodes of the given lengths."""
+    return _curve(returns, costs).assign(length=lengths, timesteps=np.cumsum(lengths))
+
+
+def test_late_episodes_reads_the_episodes_that_end_in_the_last_quarter() -> None:
+    # 400 env steps: the last quarter is after step 300, so the episodes ending at 350 and 400 count, not the one at 300
+    curve = _episodes([100, 200, 50, 50], [100.0, 500.0, 30.0, 90.0], [0.0, 100.0, 5.0, 15.0])
+    assert late_episodes(curve) == pytest.approx({"length": 50.0, "return_per_step": 1.2, "cost_share": 20.0})
+    whole = late_episodes(curve, share=1.0)
+    assert whole["length"] == 100.0 and whole["return_per_step"] == pytest.approx(1.8)
+
+
+def test_late_episodes_markdown_gives_each_task_and_algorithm_a_row() -> None:
+    falls = _episodes([100, 20, 20], [100.0, 40.0, 40.0], [0.0, 10.0, 10.0])  # late: 20-step episodes at 2 per step
+    stays = _episodes([100, 100, 100], [100.0, 100.0, 100.0], [0.0, 0.0, 0.0])
+    markdown = late_episodes_markdown({(ANT.env_id, "sac"): [falls, falls], (ANT.env_id, "sppo"): [stays]})
+    lines = markdown.splitlines()
+    assert "| Method | Seeds | Episode length (steps) | Return per env step | Steps above the limit (%) |" in lines
+    assert "| SAC | 2 | 20 [20, 20] | 2.00 [2.00, 2.00] | 50 [50, 50] |" in lines
+    assert "| SPPO (ours) | 1 | 100 | 1.00 | 0 |" in lines
 
 
 def _write_run(root: Path, algo: str, seed: int, returns: list[float], costs: list[float], task: str = TARGET_TASK) -> None:
@@ -124,6 +149,7 @@ def test_plot_results_velocity_mode_writes_its_figures_and_tables(tmp_path: Path
         "cumulative_cost.png",
         "velocity_tables.md",
         "velocity_overview.md",
+        "late_episodes.md",
         "sample_efficiency.png",
     ):
         assert (out / name).is_file(), name

@@ -20,6 +20,7 @@ from sppo_sb3.experiments.velocity import (
     TARGET_TASK,
     efficiency_markdown,
     efficiency_table,
+    late_episodes_markdown,
     seed_efficiency,
     target_return,
     velocity_overview_markdown,
@@ -44,7 +45,7 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "--velocity",
         action="store_true",
         help="velocity-benchmark mode: curves of return and cumulative cost, tables beside OmniSafe's published rows, "
-        "and the env steps to 80%% of OmniSafe's SACLag return on HalfCheetah",
+        "how the last quarter's episodes go (length, return per step, steps above the limit), and the env steps to 80%% of OmniSafe's SACLag return on HalfCheetah",
     )
     parser.add_argument("--smooth", type=int, default=5, help="rolling mean over this many episodes (default: 5)")
     parser.add_argument("--points", type=int, default=100, help="env-step grid of the curves' mean and CI (default: 100)")
@@ -95,7 +96,8 @@ def write_velocity_figures(
     plot_curves(with_cost, tasks, "cumulative_cost", "cumulative training cost", out / "cumulative_cost.png", args.points)
     (out / "velocity_tables.md").write_text(velocity_tables_markdown(table))
     (out / "velocity_overview.md").write_text(velocity_overview_markdown(table))
-    written = ["learning_curves.png", "cumulative_cost.png", "velocity_tables.md", "velocity_overview.md"]
+    (out / "late_episodes.md").write_text(late_episodes_markdown(curves))
+    written = ["learning_curves.png", "cumulative_cost.png", "velocity_tables.md", "velocity_overview.md", "late_episodes.md"]
     if TARGET_TASK in tasks:
         target = target_return()
         runs = seed_efficiency(curves, TARGET_TASK, target)

@@ -17,6 +17,7 @@ import pandas as pd
 
 from sppo_sb3.envs.velocity import ANT, HALF_CHEETAH, HOPPER, SWIMMER, WALKER2D
 from sppo_sb3.experiments.display import VELOCITY_TASK_NAMES, algo_sort_key, display_name, task_title
+from sppo_sb3.experiments.stats import seed_intervals
 from sppo_sb3.experiments.tables import INTERVAL_LEGEND, estimate_cell
 
 #: the OmniSafe commit the published rows were read at
@@ -189,6 +190,71 @@ def velocity_overview_markdown(table: pd.DataFrame) -> str:
             verdict = "yes" if ours_wins else "no"
         lines.append("| " + " | ".join([VELOCITY_TASK_NAMES.get(str(task), str(task)), *cells, best, verdict]) + " |")
     lines += ["", f"SPPO's mean is at or above the best of the others on {at_or_above} of {compared} tasks.", ""]
+    return "\n".join(lines)
+
+
+#: the end of training that :func:`late_episodes` reads: episodes that end in this last share of a run's env steps
+LATE_SHARE = 0.25
+
+#: the columns of :func:`late_episodes_markdown`: (key of :func:`late_episodes`, digits, title)
+LATE_FIGURES: tuple[tuple[str, int, str], ...] = (
+    ("length", 0, "Episode length (steps)"),
+    ("return_per_step", 2, "Return per env step"),
+    ("cost_share", 0, "Steps above the limit (%)"),
+)
+
+
+def late_episodes(curve: pd.DataFrame, share: float = LATE_SHARE) -> dict[str, float]:
+    """How a run's episodes go at the end of training: over the episodes that end in its last ``share`` of env steps,
+    their mean length, their return per env step, and the share of their steps that cost (in %).
+
+    On the velocity tasks a robot that falls ends its episode, and a step above the velocity limit costs 1, so a
+    short episode is a fall, and the return per step splits into staying up (1 per step alive, on Hopper, Walker2d
+    and Ant) and speed, the part a step above the limit pays for.
+
+    :param curve: the run's learning curve (:data:`~sppo_sb3.experiments.layout.CURVE_COLUMNS`).
+    :param share: the share of the run's env steps at its end.
+    """
+    steps = curve["timesteps"].astype(float)
+    late = curve[steps > (1.0 - share) * steps.iloc[-1]]
+    lengths = late["length"].astype(float)
+    return {
+        "length": float(lengths.mean()),
+        "return_per_step": float(late["return"].astype(float).sum() / lengths.sum()),
+        "cost_share": float(100.0 * late["cost"].astype(float).sum() / lengths.sum()),
+    }
+
+
+def _late_cell(values: np.ndarray, digits: int) -> str:
+    """Mean over seeds ``[95% CI]`` (the value alone for one seed)."""
+    mean = float(np.mean(values))
+    interval = seed_intervals(values)
+    if not np.isfinite(interval["ci_low"]):
+        return f"{mean:.{digits}f}"
+    return f"{mean:.{digits}f} [{interval['ci_low']:.{digits}f}, {interval['ci_high']:.{digits}f}]"
+
+
+def late_episodes_markdown(curves: dict[tuple[str, str], list[pd.DataFrame]], share: float = LATE_SHARE) -> str:
+    """:func:`late_episodes` per task and algorithm, mean [95% CI] over seeds: who falls, and who pays for speed.
+
+    :param curves: the runs' curves by ``(task, algo)``.
+    :param share: the share of each run's env steps at its end.
+    """
+    header = "| Method | Seeds |" + "".join(f" {title} |" for _, _, title in LATE_FIGURES)
+    lines = [
+        "<!-- written by scripts/plot_results.py --velocity -->",
+        f"The training episodes that end in the last {share:.0%} of each run's env steps: their length (a short one is "
+        "a fall), their return per env step (on Hopper, Walker2d and Ant, 1 of it for staying up, the rest for speed) "
+        "and the share of their steps above the velocity limit. Mean [95% CI] over seeds; the value alone for one seed.",
+        "",
+    ]
+    for task in sorted({task for task, _ in curves}):
+        lines += [f"### {task_title(task)}", "", header, "|" + "---|" * header.count(" |")]
+        for algo in sorted((a for t, a in curves if t == task), key=algo_sort_key):
+            figures = [late_episodes(curve, share) for curve in curves[(task, algo)]]
+            cells = [_late_cell(np.array([f[key] for f in figures]), digits) for key, digits, _ in LATE_FIGURES]
+            lines.append("| " + " | ".join([display_name(algo), str(len(figures)), *cells]) + " |")
+        lines.append("")
     return "\n".join(lines)
 
 
