@@ -45,7 +45,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "--velocity",
         action="store_true",
         help="velocity-benchmark mode: curves of return and cumulative cost, tables beside OmniSafe's published rows, "
-        "how the last quarter's episodes go (length, return per step, steps above the limit), and the env steps to 80%% of OmniSafe's SACLag return on HalfCheetah",
+        "how the last quarter's episodes go (length, return per step, steps above the limit), "
+        "and the env steps to 80%% of OmniSafe's SACLag return on HalfCheetah",
     )
     parser.add_argument("--smooth", type=int, default=5, help="rolling mean over this many episodes (default: 5)")
     parser.add_argument("--points", type=int, default=100, help="env-step grid of the curves' mean and CI (default: 100)")
