@@ -243,9 +243,10 @@ def late_episodes_markdown(curves: dict[tuple[str, str], list[pd.DataFrame]], sh
     header = "| Method | Seeds |" + "".join(f" {title} |" for _, _, title in LATE_FIGURES)
     lines = [
         "<!-- written by scripts/plot_results.py --velocity -->",
-        f"The training episodes that end in the last {share:.0%} of each run's env steps: their length (a short one is "
-        "a fall), their return per env step (on Hopper, Walker2d and Ant, 1 of it for staying up, the rest for speed) "
-        "and the share of their steps above the velocity limit. Mean [95% CI] over seeds; the value alone for one seed.",
+        f"The training episodes that end in the last {share:.0%} of each run's env steps: their length (a short one",
+        "is a fall), their return per env step (on Hopper, Walker2d and Ant, 1 of it for staying up, the rest for",
+        "speed) and the share of their steps above the velocity limit. Mean [95% CI] over seeds; the value alone for",
+        "one seed.",
         "",
     ]
     for task in sorted({task for task, _ in curves}):
