@@ -208,9 +208,9 @@ def late_episodes(curve: pd.DataFrame, share: float = LATE_SHARE) -> dict[str, f
     """How a run's episodes go at the end of training: over the episodes that end in its last ``share`` of env steps,
     their mean length, their return per env step, and the share of their steps that cost (in %).
 
-    On the velocity tasks a robot that falls ends its episode, and a step above the velocity limit costs 1, so a
-    short episode is a fall, and the return per step splits into staying up (1 per step alive, on Hopper, Walker2d
-    and Ant) and speed, the part a step above the limit pays for.
+    On Hopper, Walker2d and Ant a robot that falls ends its episode, so a short episode is a fall, and the reward
+    pays 1 per step alive plus the forward speed; a step above the velocity limit costs 1. The three figures tell a
+    learner that falls from one that buys its return with speed over the limit.
 
     :param curve: the run's learning curve (:data:`~sppo_sb3.experiments.layout.CURVE_COLUMNS`).
     :param share: the share of the run's env steps at its end.
