@@ -30,7 +30,7 @@ import sppo_sb3  # noqa: F401  (registers the task)
 from sppo_sb3 import SAILR, SPPO
 from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY
 from sppo_sb3.evaluation import evaluate_deployment
-from sppo_sb3.experiments import stats
+from sppo_sb3.experiments import stats, tables
 
 ENV_ID = "SafePointCircle-v0"
 ROOT = Path(__file__).resolve().parent.parent
@@ -107,21 +107,6 @@ INTERVAL_HEADER = (
 )
 
 
-def mean_interval(values: Sequence[float]) -> str:
-    """``mean [low, high]``: the mean over seeds and its bootstrap interval (:func:`stats.seed_intervals`).
-
-    Non-finite values (a run without that figure) are left out; ``mean`` alone where fewer than 2 seeds remain.
-    """
-    x = np.asarray(values, dtype=float)
-    x = x[np.isfinite(x)]
-    if len(x) == 0:
-        return "–"
-    interval = stats.seed_intervals(x)
-    if not np.isfinite(interval["ci_low"]):
-        return f"{x.mean():.2f}"
-    return f"{x.mean():.2f} [{interval['ci_low']:.2f}, {interval['ci_high']:.2f}]"
-
-
 COLUMNS = {
     "seeds": None,
     "return (last 10 ep.)": "last10_return",
@@ -150,7 +135,7 @@ def summary(out: Path) -> str:
                 cells.append(str(len(results)))
             else:
                 scale = 1 / 60 if key == "train_seconds" else 1.0
-                cells.append(mean_interval([scale * r[key] for r in results]))
+                cells.append(tables.values_cell([scale * r[key] for r in results]))
         lines.append(f"| {variant_dir.name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

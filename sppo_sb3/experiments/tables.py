@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import pandas as pd
 
 from sppo_sb3.experiments.display import display_name, env_steps_per_step, task_title
-from sppo_sb3.experiments.stats import BOOTSTRAP_REPS, EARLY_FRACTION, IQM_MIN_SEEDS, order_of_magnitude
+from sppo_sb3.experiments.stats import BOOTSTRAP_REPS, EARLY_FRACTION, IQM_MIN_SEEDS, order_of_magnitude, seed_intervals
 
 #: the paper's Tables I (Point Robot) and II (Half-Cheetah): violations' order of magnitude, safety rate mean, std
 PAPER_TABLES: dict[str, dict[str, tuple[str, float, float]]] = {
@@ -60,6 +62,20 @@ def estimate_cell(row: pd.Series, key: str, digits: int = 2) -> str:
         return cell
     mean = row.get(f"{key}_mean", float("nan"))
     return "–" if not np.isfinite(mean) else f"{mean:.{digits}f} ± {row[f'{key}_std']:.{digits}f}"
+
+
+def values_cell(values: Sequence[float], digits: int = 2) -> str:
+    """``mean [low, high]`` of per-seed ``values`` (:func:`~sppo_sb3.experiments.stats.seed_intervals`): the mean alone
+    where fewer than 2 finite values remain, ``–`` where none do. Non-finite values (a run without the figure) are left
+    out."""
+    x = np.asarray(values, dtype=float)
+    x = x[np.isfinite(x)]
+    if len(x) == 0:
+        return "–"
+    interval = seed_intervals(x)
+    if not np.isfinite(interval["ci_low"]):
+        return f"{x.mean():.{digits}f}"
+    return f"{x.mean():.{digits}f} [{interval['ci_low']:.{digits}f}, {interval['ci_high']:.{digits}f}]"
 
 
 def _iqm(row: pd.Series, key: str, digits: int = 2) -> str:

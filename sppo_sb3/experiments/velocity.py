@@ -17,8 +17,7 @@ import pandas as pd
 
 from sppo_sb3.envs.velocity import ANT, HALF_CHEETAH, HOPPER, SWIMMER, WALKER2D
 from sppo_sb3.experiments.display import VELOCITY_TASK_NAMES, algo_sort_key, display_name, task_title
-from sppo_sb3.experiments.stats import seed_intervals
-from sppo_sb3.experiments.tables import INTERVAL_LEGEND, estimate_cell
+from sppo_sb3.experiments.tables import INTERVAL_LEGEND, estimate_cell, values_cell
 
 #: the OmniSafe commit the published rows were read at
 OMNISAFE_COMMIT = "15603dd7a654a991d0a4648216b69d60b81a6366"
@@ -225,15 +224,6 @@ def late_episodes(curve: pd.DataFrame, share: float = LATE_SHARE) -> dict[str, f
     }
 
 
-def _late_cell(values: np.ndarray, digits: int) -> str:
-    """Mean over seeds ``[95% CI]`` (the value alone for one seed)."""
-    mean = float(np.mean(values))
-    interval = seed_intervals(values)
-    if not np.isfinite(interval["ci_low"]):
-        return f"{mean:.{digits}f}"
-    return f"{mean:.{digits}f} [{interval['ci_low']:.{digits}f}, {interval['ci_high']:.{digits}f}]"
-
-
 def late_episodes_markdown(curves: dict[tuple[str, str], list[pd.DataFrame]], share: float = LATE_SHARE) -> str:
     """:func:`late_episodes` per task and algorithm, mean [95% CI] over seeds: who falls, and who pays for speed.
 
@@ -253,7 +243,7 @@ def late_episodes_markdown(curves: dict[tuple[str, str], list[pd.DataFrame]], sh
         lines += [f"### {task_title(task)}", "", header, "|" + "---|" * header.count(" |")]
         for algo in sorted((a for t, a in curves if t == task), key=algo_sort_key):
             figures = [late_episodes(curve, share) for curve in curves[(task, algo)]]
-            cells = [_late_cell(np.array([f[key] for f in figures]), digits) for key, digits, _ in LATE_FIGURES]
+            cells = [values_cell([f[key] for f in figures], digits) for key, digits, _ in LATE_FIGURES]
             lines.append("| " + " | ".join([display_name(algo), str(len(figures)), *cells]) + " |")
         lines.append("")
     return "\n".join(lines)
