@@ -43,8 +43,8 @@ from sppo_sb3.envs.velocity import VELOCITY_TASKS
 from sppo_sb3.experiments.recording import RecordingRule
 from sppo_sb3.shield import SHIELDING_RULES, MujocoShieldingRule, rule_parameters_of
 from sppo_sb3.shield.base import ShieldingRule
-from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule, rollout_heights_python
-from sppo_sb3.shield.point import PointCircleShieldingRule
+from sppo_sb3.shield.tasks.cheetah import HalfCheetahHeightShieldingRule, rollout_heights_python
+from sppo_sb3.shield.tasks.point import PointCircleShieldingRule
 from sppo_sb3.zoo import constructor_kwargs
 
 ENV_ID = "SafeHalfCheetahHeight-v1"

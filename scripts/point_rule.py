@@ -4,7 +4,7 @@ For each rule (the default, the paper's and the band widths between), a scripted
 (:func:`~sppo_sb3.envs.point_circle.scripted_lap_action`) aimed at each ``|x|`` of ``LAP_TARGETS`` runs one
 500-step episode under the shield; the ceiling is the best safe lap's return, against the best unshielded one. (The
 rules' cost per env step: ``scripts/bench_shield.py``.)
-``β`` of Definition 2 is measured on random transitions of the true dynamics (:func:`~sppo_sb3.shield.bounds.
+``β`` of Definition 2 is measured on random transitions of the true dynamics (:func:`~sppo_sb3.shield.analysis.bounds.
 adoptability_gap`), and the bound of Theorem 1 at the task's start state.
 
     python scripts/point_rule.py                  # the table of docs/results.md
@@ -19,8 +19,8 @@ import numpy as np
 
 from sppo_sb3.envs.point_circle import PointParams, point_is_unsafe, point_step
 from sppo_sb3.experiments.point_lap import LAP_TARGETS, lap_ceiling
-from sppo_sb3.shield.bounds import adoptability_gap, theorem1_bound
-from sppo_sb3.shield.point import PointCircleShieldingRule, paper_point_rule
+from sppo_sb3.shield.analysis.bounds import adoptability_gap, theorem1_bound
+from sppo_sb3.shield.tasks.point import PointCircleShieldingRule, paper_point_rule
 
 RULES = {
     "paper (SAILR): brake both, band 0.5": paper_point_rule,

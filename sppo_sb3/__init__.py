@@ -8,9 +8,10 @@ from sppo_sb3.csc import CSC
 from sppo_sb3.pdo import PDO
 from sppo_sb3.saclag import SACLag
 from sppo_sb3.sailr import SAILR
+from sppo_sb3.shielded import ShieldRuleLoadError
 from sppo_sb3.sppo import SPPO, TOLDPolicy
 
 with open(os.path.join(os.path.dirname(__file__), "version.txt")) as file_handler:
     __version__ = file_handler.read().strip()
 
-__all__ = ["CPO", "CSC", "PDO", "SAILR", "SPPO", "SACLag", "TOLDPolicy", "__version__"]
+__all__ = ["CPO", "CSC", "PDO", "SAILR", "SPPO", "SACLag", "ShieldRuleLoadError", "TOLDPolicy", "__version__"]

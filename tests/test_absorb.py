@@ -15,7 +15,7 @@ from sppo_sb3 import PDO, SPPO
 from sppo_sb3.envs.point_circle import PointParams, point_is_unsafe, point_step
 from sppo_sb3.evaluation import evaluate_deployment
 from sppo_sb3.shield import LearnedCostCriticRule, PointCircleShieldingRule, ShieldWrapper
-from sppo_sb3.shield.bounds import adoptability_gap, discounted_violation, theorem1_bound
+from sppo_sb3.shield.analysis.bounds import adoptability_gap, discounted_violation, theorem1_bound
 from sppo_sb3.sppo.buffers import SequenceSamples
 from sppo_sb3.sppo.optim import init_optimizer_state
 from sppo_sb3.sppo.planner import policy_rollout, trajectory_return
@@ -311,10 +311,10 @@ def test_refine_shield_auto_refines_exactly_the_learnable_rules() -> None:
     env = gym.make("SafePointCircle-v0")
     learned = LearnedCostCriticRule(env.observation_space, env.action_space, PointCircleShieldingRule().backup_action)
     kwargs = dict(learning_starts=100, policy_kwargs=TINIEST_TOLD, horizon=2, compile=False, seed=0)
-    assert SPPO("TOLDPolicy", env, shield=learned, **kwargs).refines_shield
-    assert not SPPO("TOLDPolicy", env, shield=learned, refine_shield=False, **kwargs).refines_shield
+    assert SPPO("TOLDPolicy", env, shield=learned, **kwargs).shield_is_learned
+    assert not SPPO("TOLDPolicy", env, shield=learned, refine_shield=False, **kwargs).shield_is_learned
     model = SPPO("TOLDPolicy", env, **kwargs)
-    assert model.refine_shield == "auto" and not model.refines_shield  # the task's model rule: nothing to fit
+    assert model.refine_shield == "auto" and not model.shield_is_learned  # the task's model rule: nothing to fit
     model.learn(150)
     assert "train/shield_loss" not in model.logger.name_to_value
     with pytest.raises(ValueError, match='True, False or "auto"'):

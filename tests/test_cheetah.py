@@ -13,7 +13,7 @@ from stable_baselines3.common.env_checker import check_env
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.envs.half_cheetah_height import SafeHalfCheetahHeightEnv, height_distance_to_unsafe, height_is_unsafe
 from sppo_sb3.shield import default_shielding_rule
-from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule, rollout_heights_python
+from sppo_sb3.shield.tasks.cheetah import HalfCheetahHeightShieldingRule, rollout_heights_python
 
 HOLD = np.full(6, 0.3)  # a constant torque under which the cheetah stands still with its front thigh at ~0.61
 

@@ -7,8 +7,8 @@ import pytest
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.envs.half_cheetah_height import SafeHalfCheetahHeightEnv
-from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule
-from sppo_sb3.shield.warm_starts import WarmStarts
+from sppo_sb3.shield.mujoco.warm_starts import WarmStarts
+from sppo_sb3.shield.tasks.cheetah import HalfCheetahHeightShieldingRule
 
 HOLD = np.full(6, 0.3)  # stands still, front thigh at ~0.61
 

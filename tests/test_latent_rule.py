@@ -47,7 +47,7 @@ def test_an_untrained_rule_shields_nothing_and_the_backup_is_never_shielded() ->
     assert not registered.shield(obs, actions).intervened.any()  # zero-initialised heads: Q̄ is the same everywhere
     model = latent_sppo(small_rule())
     rule = model.shield_rule
-    assert isinstance(rule, LatentModelRule) and rule.model is model.policy.model and model.refines_shield
+    assert isinstance(rule, LatentModelRule) and rule.model is model.policy.model and model.shield_is_learned
     model.learn(150)
     assert not rule.shield(obs, rule.backup_action(obs)).intervened.any()  # Proposition 1, whatever the heads learned
     np.testing.assert_array_equal(rule.advantage(obs, rule.backup_action(obs)), 0.0)

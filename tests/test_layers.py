@@ -19,8 +19,19 @@ PACKAGE_DIR = Path(__file__).resolve().parents[1] / "sppo_sb3"
 FLOORS: tuple[tuple[str, ...], ...] = (
     ("sppo_sb3.common", "sppo_sb3.algorithms"),  # conventions, keys, the shared on-policy machinery, the list of algorithms
     ("sppo_sb3.envs",),  # the tasks' physics
-    ("sppo_sb3.shield",),  # rules built on the tasks, their registry, the wrapper
-    ("sppo_sb3.sppo", "sppo_sb3.pdo", "sppo_sb3.cpo", "sppo_sb3.sailr", "sppo_sb3.csc", "sppo_sb3.saclag"),  # the algorithms
+    ("sppo_sb3.shield.base",),  # the shield's contract: ShieldingRule and its decisions
+    ("sppo_sb3.shield.mujoco", "sppo_sb3.shield.learned", "sppo_sb3.shield.analysis"),  # engines, learned rules, analysis
+    ("sppo_sb3.shield.tasks",),  # the built-in tasks' rules, on the engines
+    ("sppo_sb3.shield",),  # the registry behind shield="auto", the wrapper, the shield's public names
+    (  # the algorithms, and what the shielded ones share (loading their rule)
+        "sppo_sb3.shielded",
+        "sppo_sb3.sppo",
+        "sppo_sb3.pdo",
+        "sppo_sb3.cpo",
+        "sppo_sb3.sailr",
+        "sppo_sb3.csc",
+        "sppo_sb3.saclag",
+    ),
     (  # what uses the algorithms: deployment evaluation, the zoo, the CLIs, the benchmark, the package's front door
         "sppo_sb3",
         "sppo_sb3.evaluation",
@@ -171,6 +182,8 @@ def test_circles_are_found(graph: dict[str, set[str]], expected: list[list[str]]
 def test_upward_arrows_are_found() -> None:
     graph = {"sppo_sb3.common.costs": {"sppo_sb3.shield.wrapper"}, "sppo_sb3.shield.wrapper": {"sppo_sb3.common.costs"}}
     assert upward_arrows(graph) == [("sppo_sb3.common.costs", "sppo_sb3.shield.wrapper")]
+    inside_the_shield = {"sppo_sb3.shield.base": {"sppo_sb3.shield.tasks.point"}, "sppo_sb3.shield.tasks.point": set()}
+    assert upward_arrows(inside_the_shield) == [("sppo_sb3.shield.base", "sppo_sb3.shield.tasks.point")]
 
 
 if __name__ == "__main__":

@@ -23,12 +23,11 @@ from tiny_hyperparams import QUICK_CSC, TINY_ON_POLICY
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer
 from sppo_sb3.common.cost_policy import CostActorCriticPolicy
-from sppo_sb3.common.cost_tracker import EpisodeCostTracker
 from sppo_sb3.common.costs import MissingCostError
 from sppo_sb3.common.gae import compute_gae
 from sppo_sb3.common.keys import EPISODE_COST_ESTIMATE_LOG_KEY, LAGRANGE_MULTIPLIER_LOG_KEY
 from sppo_sb3.common.lagrange import DEFAULT_COST_LIMIT
-from sppo_sb3.common.safety import SafetyMetrics
+from sppo_sb3.common.safety import EpisodeCostTracker, SafetyMetrics
 from sppo_sb3.cpo import CPO
 from sppo_sb3.csc import CSC
 from sppo_sb3.experiments.configs import REPO_HYPERPARAMS_DIR as HYPERPARAMS_DIR

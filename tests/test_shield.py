@@ -37,8 +37,8 @@ from sppo_sb3.shield import (
     resolve_shielding_rule,
 )
 from sppo_sb3.shield.base import advantage_from_values
-from sppo_sb3.shield.point import paper_point_rule
 from sppo_sb3.shield.registry import PAPER_POINT_RULE
+from sppo_sb3.shield.tasks.point import paper_point_rule
 
 PARAMS = PointParams()
 INTERVENED = "shield_intervened"
@@ -571,7 +571,7 @@ print(" ".join(sorted(name for name in sys.modules if name.startswith("sppo_sb3"
     assert not [name for name in loaded if name.startswith("sppo_sb3.shield")], loaded
 
 
-@pytest.mark.parametrize("module", [*ENV_MODULES, "sppo_sb3.shield.point", "sppo_sb3.shield.cheetah"])
+@pytest.mark.parametrize("module", [*ENV_MODULES, "sppo_sb3.shield.tasks.point", "sppo_sb3.shield.tasks.cheetah"])
 def test_modules_import_first_in_a_fresh_interpreter(module: str) -> None:
     subprocess.run([sys.executable, "-c", f"import {module}"], check=True)
 

@@ -1,4 +1,4 @@
-"""The measures of how well a rule knows where the danger is (``sppo_sb3.shield.quality``), on the Point model."""
+"""The measures of how well a rule knows where the danger is (``sppo_sb3.shield.analysis.quality``), on the Point model."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from sppo_sb3.envs.point_circle import PointParams, point_distance_to_unsafe, point_is_unsafe, point_step
-from sppo_sb3.shield import PointCircleShieldingRule, quality
+from sppo_sb3.shield import PointCircleShieldingRule
+from sppo_sb3.shield.analysis import quality
 
 PARAMS = PointParams()
 

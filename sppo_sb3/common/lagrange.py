@@ -3,7 +3,7 @@
 They solve the constrained problem of the paper's Section II-B (the CMDP ``max_π J_R(π)  s.t.  J_C(π) <= d``) on its
 Lagrangian ``L(π, λ) = J_R(π) - λ·(J_C(π) - d)``, ``λ >= 0``: a primal (policy) step on the advantage
 ``(A_R - λ·A_C) / (1 + λ)`` and a projected dual (gradient) step on ``λ`` driven by the measured episode cost ``J_C``
-of :class:`~sppo_sb3.common.cost_tracker.EpisodeCostTracker`. The paper's baselines PDO [25] and CSC [28]
+of :class:`~sppo_sb3.common.safety.EpisodeCostTracker`. The paper's baselines PDO [25] and CSC [28]
 (Section V-A.3) are this scheme with two different cost advantages ``A_C``; SACLag's primal step is SAC's actor loss
 with the penalty ``λ·Q_C``, also scaled by ``1 / (1 + λ)``.
 """
@@ -48,7 +48,7 @@ def lagrangian_advantage(advantages: np.ndarray, cost_advantages: np.ndarray, la
 class LagrangianMixin:
     """The multiplier ``λ`` of a primal-dual algorithm: its arguments, its dual step, its logs.
 
-    Put it before :class:`~sppo_sb3.common.safety_tracking.SafetyTrackingMixin` (or
+    Put it before :class:`~sppo_sb3.common.safety.SafetyTrackingMixin` (or
     :class:`~sppo_sb3.common.on_policy.SafeOnPolicyMixin`, which is one) in the bases
     (``class PDO(LagrangianMixin, SafeOnPolicyMixin, PPO)``), whose ``measured_episode_cost`` gives the measured
     episode cost ``J_C`` (on-policy: the tracker's estimate over the latest rollout; SACLag: over its recent window),

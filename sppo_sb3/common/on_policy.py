@@ -7,7 +7,7 @@ cost-aware, written once, with a hook for each thing the algorithms do different
 - :meth:`~SafeOnPolicyMixin._choose_actions`: how the executed actions are chosen (CSC: its cost critic's rejection
   sampler);
 - :meth:`~SafeOnPolicyMixin._learning_transition`: how a step enters the learning data (SAILR: the absorbing MDP);
-- :meth:`~SafeOnPolicyMixin._store_transition`: what else is stored per transition (CSC: its cost critic's replay
+- :meth:`~SafeOnPolicyMixin._store_extra_transition`: what else is stored per transition (CSC: its cost critic's replay
   buffer).
 
 and the update PDO and SAILR share, PPO on the penalised advantage followed by the cost critic's regression
@@ -15,8 +15,8 @@ and the update PDO and SAILR share, PPO on the penalised advantage followed by t
 
 Its parts live in their own modules: :func:`~sppo_sb3.common.gae.compute_gae`,
 :class:`~sppo_sb3.common.cost_buffer.CostRolloutBuffer`, :class:`~sppo_sb3.common.cost_policy.CostActorCriticPolicy`,
-:class:`~sppo_sb3.common.cost_tracker.EpisodeCostTracker` (kept with the safety metrics by
-:class:`~sppo_sb3.common.safety_tracking.SafetyTrackingMixin`) and the Lagrange multiplier of
+:class:`~sppo_sb3.common.safety.EpisodeCostTracker` (kept with the safety metrics by
+:class:`~sppo_sb3.common.safety.SafetyTrackingMixin`) and the Lagrange multiplier of
 :mod:`sppo_sb3.common.lagrange`.
 """
 
@@ -36,7 +36,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer, cost_buffer_class
 from sppo_sb3.common.cost_policy import CostActorCriticPolicy, fit_critics
 from sppo_sb3.common.lagrange import lagrangian_advantage
-from sppo_sb3.common.safety_tracking import SafetyTrackingMixin
+from sppo_sb3.common.safety import SafetyTrackingMixin
 
 __all__ = ["ActionChoice", "SafeOnPolicyMixin"]
 
@@ -64,13 +64,13 @@ class SafeOnPolicyMixin(SafetyTrackingMixin):
     The subclass calls :meth:`_init_safety` in its ``__init__`` (after the SB3 base ``__init__`` with
     ``_init_setup_model=False`` and before ``_setup_model``). It gets:
 
-    - from :class:`~sppo_sb3.common.safety_tracking.SafetyTrackingMixin`: ``self.safety_metrics``
+    - from :class:`~sppo_sb3.common.safety.SafetyTrackingMixin`: ``self.safety_metrics``
       (:class:`~sppo_sb3.common.safety.SafetyMetrics`) fed every env step with the env's original rewards (also under
       ``VecNormalize``), logged under ``safety/`` whenever the logs are dumped, saved with the model; and
-      ``self.cost_tracker`` (:class:`~sppo_sb3.common.cost_tracker.EpisodeCostTracker`): the measured episode cost
+      ``self.cost_tracker`` (:class:`~sppo_sb3.common.safety.EpisodeCostTracker`): the measured episode cost
       ``J_C``;
     - a :class:`CostRolloutBuffer` filled with costs, cost values and cost GAE;
-    - the hooks :meth:`_choose_actions`, :meth:`_learning_transition` and :meth:`_store_transition`;
+    - the hooks :meth:`_choose_actions`, :meth:`_learning_transition` and :meth:`_store_extra_transition`;
     - :meth:`_train_on_penalised_advantage`, for a ``train`` that follows ``(A_R - κ·A_C) / (1 + κ)``.
 
     :cvar uses_cost_critic: whether the policy must have a cost value head (:class:`CostActorCriticPolicy`).
@@ -137,7 +137,7 @@ class SafeOnPolicyMixin(SafetyTrackingMixin):
         n = len(rewards)
         return rewards, costs.astype(np.float32), np.zeros(n, dtype=bool), np.ones(n, dtype=np.float32)
 
-    def _store_transition(
+    def _store_extra_transition(
         self,
         obs: np.ndarray,
         new_obs: np.ndarray,
@@ -233,7 +233,7 @@ class SafeOnPolicyMixin(SafetyTrackingMixin):
                 np.array(rewards, dtype=np.float32), costs.copy(), dones, infos
             )
             self._bootstrap_timeouts(learn_rewards, learn_costs, dones, absorbed, infos)
-            self._store_transition(self._last_obs, new_obs, actions, costs, dones, infos)  # type: ignore[arg-type]
+            self._store_extra_transition(self._last_obs, new_obs, actions, costs, dones, infos)  # type: ignore[arg-type]
             if isinstance(self.action_space, spaces.Discrete):
                 actions = actions.reshape(-1, 1)
             rollout_buffer.add(

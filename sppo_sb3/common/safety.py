@@ -1,8 +1,12 @@
-"""Safety metrics of the paper's Section V-B (Tables I and II), kept the same way by every algorithm of the package.
+"""Safety bookkeeping, kept the same way by every algorithm of the package.
 
-Per episode: return, cost sum, violations, shield interventions. Over training: cumulative violations, safety
-rate (episodes without a violation / all episodes, in %) and cumulative interventions — the quantities of the
-paper's Tables I and II. Logged under ``safety/`` and saved with the model, so a resumed run keeps counting.
+- :class:`SafetyMetrics`: the figures of the paper's Section V-B (Tables I and II). Per episode: return, cost sum,
+  violations, shield interventions. Over training: cumulative violations, safety rate (episodes without a violation
+  / all episodes, in %) and cumulative interventions. Logged under ``safety/``.
+- :class:`EpisodeCostTracker`: the measured episode cost ``J_C`` that the constrained algorithms compare with their
+  cost limit ``d``.
+- :class:`SafetyTrackingMixin`: both, fed every env step of an SB3 algorithm (on- or off-policy) and saved with the
+  model, so a resumed run keeps counting.
 """
 
 from __future__ import annotations
@@ -12,10 +16,13 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import Logger
+from stable_baselines3.common.type_aliases import MaybeCallback
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from sppo_sb3.common.costs import costs_from_infos
-from sppo_sb3.common.keys import INTERVENED_KEY, SAFETY_LOG_PREFIX
+from sppo_sb3.common.keys import EPISODE_COST_ESTIMATE_LOG_KEY, INTERVENED_KEY, SAFETY_LOG_PREFIX
 
 #: the final summary also gives the mean return of this many last episodes: where a short run has got to
 FINAL_EPISODES = 5
@@ -80,13 +87,15 @@ class SafetyMetrics:
         dones: np.ndarray,
         infos: Sequence[dict[str, Any]],
         intervened: np.ndarray | None = None,
+        required: bool = True,
     ) -> np.ndarray:
         """Feed one VecEnv step from its ``infos`` (``info["cost"]``, and ``info["shield_intervened"]`` if set).
 
         :param intervened: ``(n_envs,)`` interventions known besides the infos' (CSC's rejected samples).
+        :param required: raise where an env reports no ``info["cost"]``; otherwise count 0 there.
         :return: the costs read from the infos.
         """
-        costs = costs_from_infos(infos)
+        costs = costs_from_infos(infos, required)
         intervened_infos = np.array([bool(info.get(INTERVENED_KEY, False)) for info in infos])
         if intervened is not None:
             intervened_infos |= np.asarray(intervened, dtype=bool)
@@ -141,3 +150,162 @@ class SafetyMetrics:
             f"cumulative violations={int(s['cumulative_violations'])}  safety rate={s['safety_rate']:.2f}%  "
             f"shield interventions={int(s['cumulative_interventions'])}"
         )
+
+
+class EpisodeCostTracker:
+    """Measured episode cost ``J_C`` (undiscounted sum of ``info["cost"]`` per episode), compared with the limit ``d``.
+
+    PDO's and CSC's dual ascent and CPO's constraint value ``c = J_C - d`` read :meth:`estimate`: the mean cost of the
+    episodes that ended during the latest rollout; if none ended, the mean over the last ``window`` finished
+    episodes; if none ever ended, the mean cost so far of the running episodes (a lower bound). An off-policy
+    algorithm, which has no rollouts to speak of, reads the windowed mean alone (:meth:`recent_estimate`).
+
+    :param n_envs: number of parallel envs.
+    :param window: number of finished episodes kept for the fallback estimate.
+    """
+
+    def __init__(self, n_envs: int, window: int = 100) -> None:
+        self.n_envs = n_envs
+        self.window = window
+        self.running_cost = np.zeros(n_envs)
+        self.running_length = np.zeros(n_envs, dtype=np.int64)
+        self.recent_costs: deque[float] = deque(maxlen=window)
+        self.recent_lengths: deque[int] = deque(maxlen=window)
+        self.rollout_costs: list[float] = []
+        self.rollout_lengths: list[int] = []
+
+    def resize(self, n_envs: int) -> None:
+        """Follow a change in the number of envs (running episodes restart; finished ones are kept)."""
+        if n_envs != self.n_envs:
+            self.n_envs = n_envs
+            self.reset_running()
+
+    def reset_running(self) -> None:
+        """Forget the running episodes (the envs were reset)."""
+        self.running_cost = np.zeros(self.n_envs)
+        self.running_length = np.zeros(self.n_envs, dtype=np.int64)
+
+    def start_rollout(self) -> None:
+        """Start counting the episodes of a new rollout."""
+        self.rollout_costs = []
+        self.rollout_lengths = []
+
+    def update(self, costs: np.ndarray, dones: np.ndarray) -> None:
+        """Feed one VecEnv step: ``(n_envs,)`` costs and episode ends."""
+        self.running_cost += costs
+        self.running_length += 1
+        for idx in np.flatnonzero(dones):
+            cost, length = float(self.running_cost[idx]), int(self.running_length[idx])
+            self.rollout_costs.append(cost)
+            self.rollout_lengths.append(length)
+            self.recent_costs.append(cost)
+            self.recent_lengths.append(length)
+            self.running_cost[idx] = 0.0
+            self.running_length[idx] = 0
+
+    def estimate(self) -> float:
+        """The measured mean episode cost ``J_C`` (see the class docstring for the fallbacks)."""
+        if self.rollout_costs:
+            return float(np.mean(self.rollout_costs))
+        return self.recent_estimate()
+
+    def recent_estimate(self) -> float:
+        """``J_C`` over the last ``window`` finished episodes, whatever the rollouts (SACLag's dual step, which runs
+        every few env steps); if none ever ended, the mean cost so far of the running episodes (a lower bound)."""
+        if self.recent_costs:
+            return float(np.mean(self.recent_costs))
+        return float(np.mean(self.running_cost))
+
+    def mean_length(self) -> float:
+        """Mean episode length matching :meth:`estimate` (at least 1)."""
+        if self.rollout_lengths:
+            return max(float(np.mean(self.rollout_lengths)), 1.0)
+        if self.recent_lengths:
+            return max(float(np.mean(self.recent_lengths)), 1.0)
+        return max(float(np.mean(self.running_length)), 1.0)
+
+
+class SafetyTrackingMixin:
+    """Safety metrics and the measured episode cost of an SB3 algorithm. Put it before the SB3 algorithm in the bases.
+
+    The subclass calls :meth:`_init_safety` in its ``__init__`` (after the SB3 base ``__init__``, before
+    ``_setup_model``), :meth:`_record_safety` on every env step and :meth:`_record_safety_logs` in its ``dump_logs``.
+    Both objects are plain attributes, saved with the model, so a resumed run keeps counting; ``learn`` matches them
+    to the number of envs and, when it resets the envs, restarts their running episodes.
+    """
+
+    # provided by SB3's BaseAlgorithm
+    env: VecEnv | None
+    n_envs: int
+    logger: Any
+    _last_obs: Any
+    _vec_normalize_env: VecNormalize | None
+
+    def _init_safety(self, metrics_window: int = 100, cost_window: int = 100) -> None:
+        """Create the safety metrics and the episode-cost tracker (kept as they are when a saved model is loaded).
+
+        :param metrics_window: episodes averaged in the logged ``safety/ep_*_mean`` values.
+        :param cost_window: finished episodes the tracker keeps for its windowed estimate of ``J_C``.
+        """
+        n_envs = self.n_envs if getattr(self, "env", None) is not None else 1
+        self.safety_metrics = SafetyMetrics(n_envs, window=metrics_window)
+        self.cost_tracker = EpisodeCostTracker(n_envs, window=cost_window)
+
+    def _setup_learn(
+        self,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        reset_num_timesteps: bool = True,
+        tb_log_name: str = "run",
+        progress_bar: bool = False,
+    ) -> tuple[int, BaseCallback]:
+        env_reset = reset_num_timesteps or self._last_obs is None
+        out = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)  # type: ignore[misc]
+        assert self.env is not None
+        self.safety_metrics.resize(self.env.num_envs)
+        self.cost_tracker.resize(self.env.num_envs)
+        if env_reset:
+            self._on_env_reset()
+        return out
+
+    def _on_env_reset(self) -> None:
+        """Called when ``learn`` resets the envs: running episodes start over."""
+        self.safety_metrics.restart_episodes()
+        self.cost_tracker.reset_running()
+
+    def _record_safety(
+        self,
+        rewards: np.ndarray,
+        dones: np.ndarray,
+        infos: list[dict[str, Any]],
+        intervened: np.ndarray | None = None,
+        required: bool = True,
+    ) -> np.ndarray:
+        """Feed one env step to the safety metrics, with the env's original rewards, and to the cost tracker.
+
+        :param rewards: ``(n_envs,)`` the rewards the VecEnv returned (normalised under ``VecNormalize``).
+        :param dones: ``(n_envs,)`` episode ends.
+        :param infos: the step's infos.
+        :param intervened: interventions besides the shield's ``info["shield_intervened"]`` (CSC's rejected samples).
+        :param required: raise where an env reports no ``info["cost"]``; otherwise count 0 there (an unshielded SPPO
+            on a plain task).
+        :return: the step's costs ``info["cost"]``.
+        :raises MissingCostError: when ``required`` and an env does not report ``info["cost"]``.
+        """
+        if self._vec_normalize_env is not None:
+            rewards = self._vec_normalize_env.get_original_reward()
+        costs = self.safety_metrics.update_from_infos(rewards, dones, infos, intervened, required)
+        self.cost_tracker.update(costs, dones)
+        return costs
+
+    def measured_episode_cost(self) -> float:
+        """The measured mean episode cost ``J_C`` the algorithm compares with its limit (logged beside ``safety/``).
+
+        The default is the tracker's estimate over the latest rollout (:meth:`EpisodeCostTracker.estimate`).
+        """
+        return self.cost_tracker.estimate()
+
+    def _record_safety_logs(self) -> None:
+        """Write the ``safety/`` figures and the measured episode cost to the logger (before SB3 dumps it)."""
+        self.safety_metrics.record(self.logger)
+        self.logger.record(EPISODE_COST_ESTIMATE_LOG_KEY, self.measured_episode_cost())

@@ -282,7 +282,7 @@ class CSC(LagrangianMixin, SafeOnPolicyMixin, PPO):
         values = self.policy.predict_values(obs_tensor)
         return ActionChoice(actions, values, log_probs, sample.first_rejected.cpu().numpy())
 
-    def _store_transition(
+    def _store_extra_transition(
         self,
         obs: np.ndarray,
         new_obs: np.ndarray,

@@ -1,6 +1,6 @@
 """How well a learned rule knows where the danger is on the Point Robot: ``scripts/learned_shield.py``.
 
-Two learned rules with the Point rule's backup, scored against the model rule (:mod:`sppo_sb3.shield.quality`) on a
+Two learned rules with the Point rule's backup, scored against the model rule (:mod:`sppo_sb3.shield.analysis.quality`) on a
 held-out walk whose random actions are each held for 20 steps (so that the robot meets the wall), beside ``Q̄ ≡ 0``
 and a predictor from the distance alone:
 
@@ -41,9 +41,10 @@ from sppo_sb3.shield import (
     LearnedDynamicsRule,
     PointCircleShieldingRule,
     ShieldingRule,
-    quality,
 )
-from sppo_sb3.shield.learned import CostTransitions, definition2_step_costs
+from sppo_sb3.shield.analysis import quality
+from sppo_sb3.shield.learned.base import CostTransitions
+from sppo_sb3.shield.learned.critic import definition2_step_costs
 from sppo_sb3.shield.registry import latent_point_rule
 from sppo_sb3.sppo import SPPO
 from sppo_sb3.zoo import constructor_kwargs

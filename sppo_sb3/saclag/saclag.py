@@ -35,7 +35,7 @@ from torch.nn import functional as F
 from sppo_sb3.common.cost_buffer import CostReplayBuffer, CostReplayBufferSamples, cost_buffer_class
 from sppo_sb3.common.keys import N_UPDATES_LOG_KEY, TRAIN_LOG_PREFIX
 from sppo_sb3.common.lagrange import DEFAULT_COST_LIMIT, LagrangianMixin
-from sppo_sb3.common.safety_tracking import SafetyTrackingMixin
+from sppo_sb3.common.safety import SafetyTrackingMixin
 from sppo_sb3.saclag.policies import MlpPolicy, SACLagPolicy
 
 SelfSACLag = TypeVar("SelfSACLag", bound="SACLag")

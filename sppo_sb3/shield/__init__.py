@@ -1,15 +1,21 @@
-"""Advantage-based shielding (Section III-B): rules, the built-in rules of the paper's tasks, their registry, and a
-wrapper."""
+"""Advantage-based shielding (Section III-B).
+
+The contract lives at this package's top: :class:`ShieldingRule` (``base``), :class:`ShieldWrapper` (``wrapper``) and
+the registry behind ``shield="auto"`` (``registry``). Beneath it, by role:
+
+- ``tasks``: the built-in tasks' rules (Point Robot, Half-Cheetah height, velocity);
+- ``mujoco``: the MuJoCo engine, a certified rule for any constraint on a MuJoCo env's state;
+- ``learned``: rules that learn where no model exists (Alg. 1 line 12);
+- ``analysis``: Theorem 1's bound and the comparison of a rule's decisions with a reference's.
+"""
 
 from sppo_sb3.shield.base import ShieldDecision, ShieldFailure, ShieldingRule, in_shielding_set
-from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule
-from sppo_sb3.shield.latent import LatentModelRule
-from sppo_sb3.shield.learned import LearnedCostCriticRule, RefinableRule
-from sppo_sb3.shield.learned_model import LearnedDynamicsRule
-from sppo_sb3.shield.mjmodel import ConstraintSteps, MujocoLayout, StateConstraint
-from sppo_sb3.shield.mujoco import MujocoShieldingRule
-from sppo_sb3.shield.persistence import ShieldRuleLoadError
-from sppo_sb3.shield.point import PointCircleShieldingRule
+from sppo_sb3.shield.learned.base import RefinableRule
+from sppo_sb3.shield.learned.critic import LearnedCostCriticRule
+from sppo_sb3.shield.learned.dynamics import LearnedDynamicsRule
+from sppo_sb3.shield.learned.latent import LatentModelRule
+from sppo_sb3.shield.mujoco.model import ConstraintSteps, MujocoLayout, StateConstraint
+from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule
 from sppo_sb3.shield.registry import (
     RULE_ENV_PARAMETERS,
     SHIELDING_RULES,
@@ -18,7 +24,9 @@ from sppo_sb3.shield.registry import (
     resolve_shielding_rule,
     rule_parameters_of,
 )
-from sppo_sb3.shield.velocity import VelocityConstraint
+from sppo_sb3.shield.tasks.cheetah import HalfCheetahHeightShieldingRule
+from sppo_sb3.shield.tasks.point import PointCircleShieldingRule
+from sppo_sb3.shield.tasks.velocity import VelocityConstraint
 from sppo_sb3.shield.wrapper import ShieldWrapper
 
 __all__ = [
@@ -35,7 +43,6 @@ __all__ = [
     "RefinableRule",
     "ShieldDecision",
     "ShieldFailure",
-    "ShieldRuleLoadError",
     "ShieldWrapper",
     "ShieldingRule",
     "StateConstraint",

@@ -110,8 +110,8 @@ class ShieldingRule(ABC):
     ``1 / (1 - γ)`` and ``η`` is measured in those units. Definition 2 takes ``Q̄ ∈ [0, γ]``, where a violation ``T``
     steps ahead is worth ``γ^T``: :meth:`definition2_value` is ``(1 - γ)`` times the shaped value, and
     :attr:`definition2_eta` ``= (1 - γ) η`` the same threshold on that scale — scaling both sides of ``Ā > η`` by
-    ``1 - γ`` leaves every decision unchanged. Theorem 1's bound (:mod:`sppo_sb3.shield.bounds`) is stated on
-    Definition 2's scale. A learned critic (:class:`~sppo_sb3.shield.learned.LearnedCostCriticRule`) is fitted on
+    ``1 - γ`` leaves every decision unchanged. Theorem 1's bound (:mod:`sppo_sb3.shield.analysis.bounds`) is stated on
+    Definition 2's scale. A learned critic (:class:`~sppo_sb3.shield.learned.critic.LearnedCostCriticRule`) is fitted on
     that scale directly.
 
     :param eta: advantage threshold ``η``; ``(s, a)`` is shielded iff ``Ā(s, a) > η`` (on the rule's own scale).
@@ -151,7 +151,7 @@ class ShieldingRule(ABC):
         if gamma is None:
             raise AttributeError(
                 f"{type(self).__name__} has no attribute 'gamma': set self.gamma, the discount of its Q̄, to use "
-                "Definition 2's scale and the bounds of sppo_sb3.shield.bounds."
+                "Definition 2's scale and the bounds of sppo_sb3.shield.analysis.bounds."
             )
         return float(gamma)
 

@@ -17,11 +17,11 @@ from stable_baselines3.common.vec_env import VecEnv
 from sppo_sb3.envs.point_circle import SafePointCircleEnv, point_distance_to_unsafe, point_is_unsafe
 from sppo_sb3.envs.velocity import VELOCITY_TASKS
 from sppo_sb3.shield.base import ShieldingRule
-from sppo_sb3.shield.cheetah import HalfCheetahHeightShieldingRule
-from sppo_sb3.shield.latent import LatentModelRule
-from sppo_sb3.shield.learned_model import LearnedDynamicsRule
-from sppo_sb3.shield.point import PointCircleShieldingRule, paper_point_rule
-from sppo_sb3.shield.velocity import velocity_shielding_rule
+from sppo_sb3.shield.learned.dynamics import LearnedDynamicsRule
+from sppo_sb3.shield.learned.latent import LatentModelRule
+from sppo_sb3.shield.tasks.cheetah import HalfCheetahHeightShieldingRule
+from sppo_sb3.shield.tasks.point import PointCircleShieldingRule, paper_point_rule
+from sppo_sb3.shield.tasks.velocity import velocity_shielding_rule
 
 #: a variant of a task's rule, named ``"<env id>:<variant>"``: pass the name as ``shield`` to train with it
 PAPER_POINT_RULE = "SafePointCircle-v0:paper"

@@ -18,7 +18,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY, PROPOSED_ACTION_KEY, SHAPED_COST_KEY
-from sppo_sb3.shield.learned import CostTransitions
+from sppo_sb3.shield.learned.base import CostTransitions
 
 AbsorbingMode = Literal["terminate", "restart"]
 

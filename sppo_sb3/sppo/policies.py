@@ -18,6 +18,8 @@ from stable_baselines3.common.preprocessing import get_action_dim
 from stable_baselines3.common.type_aliases import PyTorchObs
 from torch import nn
 
+from sppo_sb3.common.networks import mlp
+
 
 class ELU(nn.ELU):
     """ELU (α = 1) whose no-grad forward takes ``max(x, exp(min(x, 0)) - 1)``: four vectorised passes.
@@ -31,16 +33,6 @@ class ELU(nn.ELU):
             return super().forward(x)
         negative = th.clamp(x, max=0.0).exp_().sub_(1.0)
         return th.maximum(x, negative, out=negative)
-
-
-def mlp(in_dim: int, hidden: list[int], out_dim: int, activation: type[nn.Module] = ELU) -> nn.Sequential:
-    """``Linear → activation`` for each hidden width, then a final ``Linear``."""
-    layers: list[nn.Module] = []
-    for width in hidden:
-        layers += [nn.Linear(in_dim, width), activation()]
-        in_dim = width
-    layers.append(nn.Linear(in_dim, out_dim))
-    return nn.Sequential(*layers)
 
 
 def q_network(in_dim: int, hidden_dim: int) -> nn.Sequential:
@@ -97,13 +89,13 @@ class TOLD(nn.Module):
     ):
         super().__init__()
         self.latent_dim, self.action_dim = latent_dim, action_dim
-        self.encoder = mlp(obs_dim, [encoder_dim], latent_dim)
-        self.dynamics = mlp(latent_dim + action_dim, [hidden_dim, hidden_dim], latent_dim)
-        self.reward = mlp(latent_dim + action_dim, [hidden_dim, hidden_dim], 1)
-        self.pi = mlp(latent_dim, [hidden_dim, hidden_dim], action_dim)
+        self.encoder = mlp(obs_dim, [encoder_dim], latent_dim, ELU)
+        self.dynamics = mlp(latent_dim + action_dim, [hidden_dim, hidden_dim], latent_dim, ELU)
+        self.reward = mlp(latent_dim + action_dim, [hidden_dim, hidden_dim], 1, ELU)
+        self.pi = mlp(latent_dim, [hidden_dim, hidden_dim], action_dim, ELU)
         self.q1 = q_network(latent_dim + action_dim, hidden_dim)
         self.q2 = q_network(latent_dim + action_dim, hidden_dim)
-        self.termination = mlp(latent_dim + action_dim, [hidden_dim, hidden_dim], 1) if termination else None
+        self.termination = mlp(latent_dim + action_dim, [hidden_dim, hidden_dim], 1, ELU) if termination else None
         self.apply(orthogonal_init)
         for net in (self.reward, self.q1, self.q2):
             zero_last_layer(net)

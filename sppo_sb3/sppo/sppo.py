@@ -20,14 +20,13 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Rollout
 from stable_baselines3.common.utils import should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv
 
-from sppo_sb3.common.costs import costs_from_infos
 from sppo_sb3.common.keys import INTERVENED_KEY, N_UPDATES_LOG_KEY, PROPOSED_ACTION_KEY
-from sppo_sb3.common.safety import SafetyMetrics
+from sppo_sb3.common.safety import SafetyTrackingMixin
 from sppo_sb3.shield.base import ShieldingRule
-from sppo_sb3.shield.latent import LatentModelRule
-from sppo_sb3.shield.learned import RefinableRule
-from sppo_sb3.shield.persistence import ShieldedLoadMixin
+from sppo_sb3.shield.learned.base import RefinableRule
+from sppo_sb3.shield.learned.latent import LatentModelRule
 from sppo_sb3.shield.registry import resolve_shielding_rule
+from sppo_sb3.shielded import ShieldedLoadMixin
 from sppo_sb3.sppo.buffers import AbsorbingMode, ShieldedReplayBuffer
 from sppo_sb3.sppo.compile import CompiledFunction, CompileMode, check_compile_mode, should_compile
 from sppo_sb3.sppo.optim import init_optimizer_state, supports_tensor_step
@@ -57,7 +56,7 @@ def check_spaces(observation_space: spaces.Space, action_space: spaces.Space) ->
         )
 
 
-class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
+class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
     """Shielded Planning guided Policy Optimization (Wang, Qin & Kan).
 
     Defaults are TD-MPC's (Hansen et al. 2022). ``planner_kwargs`` are fields of :class:`MPPIConfig`, ``topo_kwargs`` fields of
@@ -215,7 +214,8 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         check_compile_mode(compile)
         self.compile = compile
         self.shield_rule: ShieldingRule | None = None
-        self.safety_metrics: SafetyMetrics | None = None
+        self.planner_warm_start: np.ndarray | None = None  # training's plan mean, saved with the model (see save)
+        self._init_safety(metrics_window=stats_window_size)
         if _init_setup_model:
             self._setup_model()
 
@@ -244,13 +244,10 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
             )
         if isinstance(self.shield_rule, LatentModelRule):  # it rolls Q̄ on this model's TOLD
             self.shield_rule.bind(self.policy.model, self._told_inputs)
-        self._setup_compiled()
-        if self.safety_metrics is None:
-            self.safety_metrics = SafetyMetrics(self.n_envs, window=self._stats_window_size)
-        self.safety_metrics.resize(self.n_envs)
+        self._setup_planner_and_update()
 
     @property
-    def refines_shield(self) -> bool:
+    def shield_is_learned(self) -> bool:
         """Whether :meth:`train` fits the rule on ``B``: a learnable rule, unless ``refine_shield=False``."""
         return isinstance(self.shield_rule, RefinableRule) and self.refine_shield is not False
 
@@ -262,7 +259,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         assert isinstance(normalized, np.ndarray)  # SPPO's spaces are flat Boxes
         return normalized
 
-    def _setup_compiled(self) -> None:
+    def _setup_planner_and_update(self) -> None:
         """The planner, the TOPO update (compiled or eager, see ``compile``) and training's warm start."""
         compile = should_compile(self.compile, self.device)
         if compile and not (supports_tensor_step(self.policy.optimizer) and supports_tensor_step(self.policy.pi_optimizer)):
@@ -288,7 +285,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
     def _restore_warm_start(self) -> th.Tensor:
         """Training's warm start as saved with the model, or a cold start if there is none or ``n_envs`` changed."""
         cold = self.planner.initial_mean(self.n_envs)
-        saved = getattr(self, "planner_warm_start", None)
+        saved = self.planner_warm_start
         return th.as_tensor(saved, device=self.device) if saved is not None and saved.shape == cold.shape else cold
 
     def _setup_replay_buffer(self) -> None:
@@ -315,12 +312,9 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         self._setup_replay_buffer()
         for optimizer in (self.policy.optimizer, self.policy.pi_optimizer):  # the update's Adam state, once per learn
             init_optimizer_state(optimizer)
-        assert self.safety_metrics is not None
-        if reset_num_timesteps or self._last_obs is None:  # SB3 resets the envs: running episodes start over
-            self.safety_metrics.restart_episodes()
-            self._plan_mean = self.planner.initial_mean(self.n_envs)
-        elif self._plan_mean.shape[0] != self.n_envs:  # set_env with another number of envs
-            self._plan_mean = self.planner.initial_mean(self.n_envs)
+        envs_reset = reset_num_timesteps or self._last_obs is None  # SB3 resets the envs
+        if envs_reset or self._plan_mean.shape[0] != self.n_envs:  # or set_env gave another number of envs
+            self._plan_mean = self.planner.initial_mean(self.n_envs)  # plans start cold
         setup = super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
         if self.shield_rule is not None:  # probe the rule on the env's real observations before it decides anything
             raw_obs = self._last_original_obs if self._vec_normalize_env is not None else self._last_obs
@@ -333,7 +327,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         ``refine_shield``), MPPI afterwards (Alg. 2)."""
         if self.num_timesteps < learning_starts:
             warmup = np.random.uniform(-1.0, 1.0, size=(len(obs), self.planner.action_dim)).astype(np.float32)
-            if self.refines_shield and self.refine_backup_fraction > 0.0:
+            if self.shield_is_learned and self.refine_backup_fraction > 0.0:
                 assert self.shield_rule is not None
                 backup = np.random.random(len(obs)) < self.refine_backup_fraction
                 if backup.any():
@@ -367,7 +361,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
         log_interval: int | None = None,
     ) -> RolloutReturn:
         """Shielded planning in the real env (Alg. 1 lines 3–9): every executed action — warm-up ones too — is safe."""
-        assert self._last_obs is not None and self.safety_metrics is not None
+        assert self._last_obs is not None
         self.policy.set_training_mode(False)
         num_collected_steps, num_collected_episodes = 0, 0
         callback.on_rollout_start()
@@ -388,8 +382,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
             if not callback.on_step():
                 return RolloutReturn(num_collected_steps * env.num_envs, num_collected_episodes, continue_training=False)
 
-            costs = costs_from_infos(infos, required=self.shield_rule is not None)
-            self.safety_metrics.update(rewards, costs, dones, intervened)
+            self._record_safety(rewards, dones, infos, intervened, required=self.shield_rule is not None)
             self._update_info_buffer(infos, dones)
             self._store_transition(replay_buffer, self.policy.scale_action(actions), new_obs, rewards, dones, infos)
             self._update_current_progress_remaining(self.num_timesteps, self._total_timesteps)
@@ -423,12 +416,12 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
             self._train_stats += stats
             self._train_stats_count += 1
         self.logger.record(N_UPDATES_LOG_KEY, self._n_updates, exclude="tensorboard")  # as SB3's off-policy algorithms
-        if self.refines_shield:
-            self._refine_shield(gradient_steps, batch_size)
+        if self.shield_is_learned:
+            self._fit_shield_rule(gradient_steps, batch_size)
         policy.set_training_mode(False)
         self.planner.mark_stale()
 
-    def _refine_shield(self, gradient_steps: int, batch_size: int) -> None:
+    def _fit_shield_rule(self, gradient_steps: int, batch_size: int) -> None:
         """Alg. 1 line 12: the learned rule learns from real transitions of ``B`` (:meth:`RefinableRule.refine`)."""
         rule = self.shield_rule
         assert isinstance(rule, RefinableRule)
@@ -452,8 +445,7 @@ class SPPO(ShieldedLoadMixin, OffPolicyAlgorithm):
             self._train_stats_count = 0
 
     def dump_logs(self) -> None:
-        assert self.safety_metrics is not None
-        self.safety_metrics.record(self.logger)
+        self._record_safety_logs()
         self._record_train_stats()
         super().dump_logs()
 

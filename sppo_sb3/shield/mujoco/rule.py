@@ -2,7 +2,7 @@
 
 Every particle of every MPC solve of a batch runs in one call of :mod:`mujoco.rollout` (C, threaded), so the cost of
 the rule is the physics; certificates (see the class) spare most solves. The constraint
-(:class:`~sppo_sb3.shield.mjmodel.StateConstraint`) reads the rolled physics states and the sensors it adds to the model.
+(:class:`~sppo_sb3.shield.mujoco.model.StateConstraint`) reads the rolled physics states and the sensors it adds to the model.
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ from mujoco import rollout as mj_rollout
 
 from sppo_sb3.common.costs import shaped_cost
 from sppo_sb3.shield.base import ShieldDecision, ShieldingRule, in_shielding_set
-from sppo_sb3.shield.mjmodel import ConstraintSteps, MujocoLayout, StateConstraint
-from sppo_sb3.shield.mpc import MPCSolution, ShieldStep, SolveCounts, physics_controls
-from sppo_sb3.shield.warm_starts import WarmStarts
+from sppo_sb3.shield.mujoco.model import ConstraintSteps, MujocoLayout, StateConstraint
+from sppo_sb3.shield.mujoco.mpc import MPCSolution, ShieldStep, SolveCounts, physics_controls
+from sppo_sb3.shield.mujoco.warm_starts import WarmStarts
 
 #: certificate candidates rolled per call (:meth:`MujocoShieldingRule.certify_in_chunks`): a few for the threads, and
 #: few to waste past the first certificate
@@ -30,7 +30,7 @@ CERTIFICATE_CHUNK = 4
 class MujocoShieldingRule(ShieldingRule):
     """MPPI backup ``ζ`` and ``Q̄`` rolled on a gymnasium MuJoCo task's own model, for any constraint on its state.
 
-    The rule rebuilds the physics state from the observation (:class:`~sppo_sb3.shield.mjmodel.MujocoLayout`) and
+    The rule rebuilds the physics state from the observation (:class:`~sppo_sb3.shield.mujoco.model.MujocoLayout`) and
     rolls the env's MJCF model, with the constraint's sensors, in :mod:`mujoco.rollout` (C, threaded): every particle
     of every MPC solve of a batch in one call.
 
@@ -55,7 +55,7 @@ class MujocoShieldingRule(ShieldingRule):
     certified and the full rule can be compared decision by decision.
 
     Warm start: ``W`` is the plan the rule meant to follow from ``s`` when it shielded the previous step (see
-    :class:`~sppo_sb3.shield.warm_starts.WarmStarts`; the zero plan at an episode's start). After the step it is, from
+    :class:`~sppo_sb3.shield.mujoco.warm_starts.WarmStarts`; the zero plan at an episode's start). After the step it is, from
     the next state: where shielded, the tail of ``ζ``'s plan (the backup plan, shifted); else ``W[1:]`` if "``a``,
     then ``W[1:]``" has ``J <= η`` (the warm plan still certifies the executed ``a``), else the first of the next
     ``certificate_particles`` particles of ``Q̄(s, a)``'s solve that does; else the plan of the ``Q̄(s, a)`` solve.
@@ -70,8 +70,8 @@ class MujocoShieldingRule(ShieldingRule):
     are those of ``certify=False``, which solves ``Q̄(s, a)``, ``ζ(s)`` and ``Q̄(s, ζ(s))`` on every step.
 
     :param env: the task: a gymnasium MuJoCo env, its id (made with ``env_kwargs``), or its
-        :class:`~sppo_sb3.shield.mjmodel.MujocoLayout`. Its observation must begin with ``[qpos[k:], qvel]``.
-    :param constraint: the unsafe set, a :class:`~sppo_sb3.shield.mjmodel.StateConstraint`.
+        :class:`~sppo_sb3.shield.mujoco.model.MujocoLayout`. Its observation must begin with ``[qpos[k:], qvel]``.
+    :param constraint: the unsafe set, a :class:`~sppo_sb3.shield.mujoco.model.StateConstraint`.
     :param horizon: ``H_m``, the MPC and ``Q̄`` horizon in env steps.
     :param n_particles: MPPI particles per solve (SAILR: 64).
     :param temperature: MPPI temperature ``λ`` (SAILR: 0.2).

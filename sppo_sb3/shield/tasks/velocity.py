@@ -1,4 +1,4 @@
-"""The velocity constraint of Safety-Gymnasium's velocity tasks, for :class:`~sppo_sb3.shield.mujoco.MujocoShieldingRule`.
+"""The velocity constraint of Safety-Gymnasium's velocity tasks, for :class:`~sppo_sb3.shield.mujoco.rule.MujocoShieldingRule`.
 
 A step violates when the robot's velocity over it, ``Δx / dt`` (or the planar speed ``|Δ(x, y)| / dt``), exceeds a
 threshold. The velocity depends only on the change of position, so the unobserved ``x`` (and ``y``) that the rule
@@ -20,8 +20,8 @@ import mujoco
 import numpy as np
 
 from sppo_sb3.envs.velocity import VelocityTask, velocity_distance_to_unsafe, velocity_is_unsafe
-from sppo_sb3.shield.mjmodel import ConstraintSteps, StateConstraint
-from sppo_sb3.shield.mujoco import MujocoShieldingRule
+from sppo_sb3.shield.mujoco.model import ConstraintSteps, StateConstraint
+from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule
 
 #: where each velocity task measures its robot, when not at the root's ``qpos``
 MEASURED_AT: dict[str, dict[str, Any]] = {"Ant": {"body": "torso"}, "Humanoid": {"mass_centre": True}}

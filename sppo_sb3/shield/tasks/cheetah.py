@@ -3,7 +3,7 @@
 The height is read per physics step by a ``framepos`` sensor added to the model on the body frame
 (``objtype="xbody"``, i.e. ``data.xpos``, the quantity of the env; ``"body"`` would measure the inertial frame
 ``data.xipos``). Everything else, the MPPI backup, ``Q̄`` and the certificates, is
-:class:`~sppo_sb3.shield.mujoco.MujocoShieldingRule`'s.
+:class:`~sppo_sb3.shield.mujoco.rule.MujocoShieldingRule`'s.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import mujoco
 import numpy as np
 
 from sppo_sb3.envs.half_cheetah_height import HEIGHT_BODY, height_distance_to_unsafe, height_is_unsafe
-from sppo_sb3.shield.mjmodel import ConstraintSteps, StateConstraint
-from sppo_sb3.shield.mujoco import MujocoShieldingRule
+from sppo_sb3.shield.mujoco.model import ConstraintSteps, StateConstraint
+from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule
 
 ENV_ID = "SafeHalfCheetahHeight-v1"
 

@@ -2,7 +2,7 @@
 
 For tasks without a model (Alg. 1 line 12). The user knows what makes a state unsafe (the functions behind their
 ``info["cost"]`` and ``info["shaped_cost"]``) and a backup ``ζ``; the dynamics are learned. Unlike a cost critic
-(:class:`~sppo_sb3.shield.learned.LearnedCostCriticRule`), a dynamics model learns from every transition, none of
+(:class:`~sppo_sb3.shield.learned.critic.LearnedCostCriticRule`), a dynamics model learns from every transition, none of
 which has to be a violation, and ``Q̄(s, a)`` and ``Q̄(s, ζ(s))`` are rolled on the same model, so the shield
 compares the two actions on one footing.
 """
@@ -21,8 +21,9 @@ from stable_baselines3.common.utils import get_device
 from torch import nn
 
 from sppo_sb3.common.costs import shaped_cost
+from sppo_sb3.common.networks import mlp
 from sppo_sb3.shield.base import advantage_from_values
-from sppo_sb3.shield.learned import OBS_EPSILON, BackupPolicy, CostTransitions, RefinableRule, mlp
+from sppo_sb3.shield.learned.base import OBS_EPSILON, BackupPolicy, CostTransitions, RefinableRule
 
 StateFunction = Callable[[np.ndarray], np.ndarray]
 
@@ -95,7 +96,7 @@ class LearnedDynamicsRule(RefinableRule):
 
     def _build_model(self) -> nn.Sequential:
         """Before learning it predicts no change (a zero head), so ``ŝ' = s``: nothing new is shielded."""
-        return mlp(self.obs_dim + self.act_dim, self.net_arch, self.obs_dim, nn.ELU, self.device)
+        return mlp(self.obs_dim + self.act_dim, self.net_arch, self.obs_dim, nn.ELU, zero_head=True).to(self.device)
 
     # ----------------------------------------------------------------------------------------------- the model
     def _inputs(self, obs: np.ndarray, actions: np.ndarray) -> th.Tensor:

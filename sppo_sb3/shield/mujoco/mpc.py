@@ -1,4 +1,4 @@
-"""What the MPC of :class:`~sppo_sb3.shield.mujoco.MujocoShieldingRule` passes around: its controls per physics step,
+"""What the MPC of :class:`~sppo_sb3.shield.mujoco.rule.MujocoShieldingRule` passes around: its controls per physics step,
 its solutions, one shielded step, and the solves it counts."""
 
 from __future__ import annotations

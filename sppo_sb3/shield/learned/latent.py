@@ -23,8 +23,9 @@ import torch as th
 from stable_baselines3.common.utils import get_device
 from torch import nn
 
+from sppo_sb3.common.networks import mlp
 from sppo_sb3.shield.base import advantage_from_values
-from sppo_sb3.shield.learned import INITIAL_LOGIT, BackupPolicy, CostTransitions, RefinableRule, mlp
+from sppo_sb3.shield.learned.base import INITIAL_LOGIT, BackupPolicy, CostTransitions, RefinableRule
 
 ObservationTransform = Callable[[np.ndarray], np.ndarray]
 
@@ -121,8 +122,8 @@ class LatentModelRule(RefinableRule):
             with th.random.fork_rng(devices=[]):
                 if self.seed is not None:
                     th.manual_seed(self.seed)
-                self.cost_head = mlp(model.latent_dim + self.act_dim, self.net_arch, 2, nn.ELU, self.device)
-                self.backup_head = mlp(model.latent_dim, self.net_arch, self.act_dim, nn.ELU, self.device)
+                self.cost_head = mlp(model.latent_dim + self.act_dim, self.net_arch, 2, nn.ELU, zero_head=True).to(self.device)
+                self.backup_head = mlp(model.latent_dim, self.net_arch, self.act_dim, nn.ELU, zero_head=True).to(self.device)
             head = self.cost_head[-1]
             assert isinstance(head, nn.Linear)
             nn.init.constant_(head.bias, INITIAL_LOGIT)  # no cost, no violation before learning: Ā ≡ 0

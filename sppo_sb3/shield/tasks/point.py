@@ -91,7 +91,7 @@ class PointCircleShieldingRule(ShieldingRule):
 
     def band_free(self) -> PointCircleShieldingRule:
         """This rule with ``α = 0`` and the same backup: its ``Q̄`` is positive exactly where "``a``, then ``ζ``" enters
-        the unsafe set (:func:`~sppo_sb3.shield.quality.violation_labels`)."""
+        the unsafe set (:func:`~sppo_sb3.shield.analysis.quality.violation_labels`)."""
         twin = copy.copy(self)
         twin.alpha = 0.0  # y_zone stays: the backup is this rule's
         return twin
