@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Literal
 
 if TYPE_CHECKING:
@@ -18,6 +19,10 @@ if TYPE_CHECKING:
 
 #: the Optuna search space an algorithm uses: SPPO's own, or the one rl-zoo3 has for PPO, TRPO or SAC
 SamplerName = Literal["sppo", "ppo", "trpo", "sac"]
+#: the package's rl-zoo3 hyperparameter files (``ALGO.yml`` and the variant folders: ``velocity/``, ``dmc/``, ...):
+#: ``sppo_sb3/hyperparams``, in a checkout a symlink to the repository's top-level ``hyperparams/`` (their one source,
+#: resolved here), in an installed wheel a copy of its yml files (package data)
+HYPERPARAMS_DIR: Path = (Path(__file__).resolve().parent / "hyperparams").resolve()
 
 
 @dataclass(frozen=True)
@@ -79,4 +84,4 @@ PAPER_ALGORITHMS: tuple[str, ...] = tuple(name for name, algo in ALGORITHMS.item
 DISPLAY_ORDER: tuple[str, ...] = ("cpo", "pdo", "csc", "sailr", "saclag", *ZOO_BASELINES, "sppo")
 
 
-__all__ = ["ALGORITHMS", "DISPLAY_ORDER", "PAPER_ALGORITHMS", "ZOO_BASELINES", "Algorithm"]
+__all__ = ["ALGORITHMS", "DISPLAY_ORDER", "HYPERPARAMS_DIR", "PAPER_ALGORITHMS", "ZOO_BASELINES", "Algorithm"]

@@ -9,10 +9,11 @@ from typing import Any
 
 import yaml
 
-from sppo_sb3.algorithms import ALGORITHMS
+from sppo_sb3.algorithms import ALGORITHMS, HYPERPARAMS_DIR
 
-#: the repository's ``hyperparams/`` folder (the benchmark's default ``--hyperparams-dir`` in a checkout)
-REPO_HYPERPARAMS_DIR = Path(__file__).resolve().parents[2] / "hyperparams"
+#: the benchmark's default ``--hyperparams-dir``: the package's yml files (:data:`~sppo_sb3.algorithms.HYPERPARAMS_DIR`,
+#: the repository's ``hyperparams/`` in a checkout, their packaged copy in an installed wheel)
+REPO_HYPERPARAMS_DIR = HYPERPARAMS_DIR
 
 
 def _load_yml(path: Path) -> dict[str, Any]:

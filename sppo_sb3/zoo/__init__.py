@@ -11,7 +11,9 @@ train command cost-aware (used by ``sppo-train``):
   whose ``monitor.csv`` gains the columns ``episode_cost`` and ``episode_violations``;
 - the evaluation callback is :class:`~sppo_sb3.common.monitor.CostEvalCallback` (``eval/mean_cost`` beside
   ``eval/mean_reward``, ``costs``/``violations`` in ``evaluations.npz``);
-- :class:`SafeExperimentManager` (:mod:`~sppo_sb3.zoo.experiment`) prints the model's safety summary at the end of
+- :class:`SafeExperimentManager` (:mod:`~sppo_sb3.zoo.experiment`) reads the package's own hyperparameters when no
+  ``-conf`` is given (:func:`~sppo_sb3.zoo.hyperparams.default_config`: ``hyperparams/ALGO.yml``, or the task family's
+  ``velocity/`` or ``dmc/`` file, shipped in the wheel), prints the model's safety summary at the end of
   training (and writes it to ``safety_summary.json`` in the run folder), evaluates ``*_kwargs`` strings of the yml
   (``planner_kwargs: "dict(...)"``, :mod:`~sppo_sb3.zoo.hyperparams`) as the zoo does for ``policy_kwargs``, and gives
   hyperparameter search a violation budget (:mod:`~sppo_sb3.zoo.budget`).
@@ -29,7 +31,14 @@ The modules import each other downward only: :mod:`~sppo_sb3.zoo.hyperparams`, :
 
 from sppo_sb3.zoo.budget import BUDGET_ENV_VAR, PENALTY_ENV_VAR, SafeTrialEvalCallback
 from sppo_sb3.zoo.experiment import DEFAULT_DEPLOYMENT_EPISODES, SafeExperimentManager
-from sppo_sb3.zoo.hyperparams import constructor_kwargs, eval_kwargs_strings, eval_yml_string, merge_kwargs
+from sppo_sb3.zoo.hyperparams import (
+    FAMILY_FOLDERS,
+    constructor_kwargs,
+    default_config,
+    eval_kwargs_strings,
+    eval_yml_string,
+    merge_kwargs,
+)
 from sppo_sb3.zoo.patches import install
 from sppo_sb3.zoo.registration import UNAVAILABLE, algo_classes, register_algos, register_samplers
 from sppo_sb3.zoo.samplers import TOLD_SIZES, convert_sppo_params, sample_sppo_params
@@ -37,6 +46,7 @@ from sppo_sb3.zoo.samplers import TOLD_SIZES, convert_sppo_params, sample_sppo_p
 __all__ = [
     "BUDGET_ENV_VAR",
     "DEFAULT_DEPLOYMENT_EPISODES",
+    "FAMILY_FOLDERS",
     "PENALTY_ENV_VAR",
     "TOLD_SIZES",
     "UNAVAILABLE",
@@ -45,6 +55,7 @@ __all__ = [
     "algo_classes",
     "constructor_kwargs",
     "convert_sppo_params",
+    "default_config",
     "eval_kwargs_strings",
     "eval_yml_string",
     "install",

@@ -6,6 +6,7 @@ budget) in the package; :func:`~sppo_sb3.zoo.patches.install` makes rl-zoo3's tr
 
 from __future__ import annotations
 
+import inspect
 import json
 import os
 from pathlib import Path
@@ -23,9 +24,19 @@ from sppo_sb3.common.keys import DEPLOYMENT_SHIELDED, DEPLOYMENT_UNSHIELDED
 from sppo_sb3.common.monitor import CostEvalCallback
 from sppo_sb3.evaluation import evaluate_deployment
 from sppo_sb3.zoo.budget import penalised_objective, resolve_violation_budget
-from sppo_sb3.zoo.hyperparams import eval_kwargs_strings, merge_kwargs
+from sppo_sb3.zoo.hyperparams import default_config, eval_kwargs_strings, merge_kwargs
 
 DEFAULT_DEPLOYMENT_EPISODES = 5
+
+
+def _given_config(args: tuple[Any, ...], kwargs: dict[str, Any]) -> str | None:
+    """The ``config`` (``-conf``) that ``ExperimentManager(*args, **kwargs)`` was given (``None``: none).
+
+    :param args: the constructor's positional arguments.
+    :param kwargs: its keyword arguments.
+    """
+    bound = inspect.signature(ExperimentManager.__init__).bind_partial(None, *args, **kwargs)
+    return bound.arguments.get("config")
 
 
 class SafeExperimentManager(ExperimentManager):
@@ -43,6 +54,10 @@ class SafeExperimentManager(ExperimentManager):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        if _given_config(args, kwargs) is None:  # no -conf: the package's own file (rl-zoo3 has none for its algorithms)
+            packaged = default_config(self.algo, self.env_name.gym_id)
+            if packaged is not None:
+                self.config = str(packaged)
         self.budget, self.penalty = resolve_violation_budget(self.violation_budget, self.violation_penalty)
         self.safety_summary: dict[str, float] | None = None
 

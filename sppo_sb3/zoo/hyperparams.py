@@ -1,4 +1,5 @@
-"""The yml's ``*_kwargs`` strings: evaluated as rl-zoo3 evaluates ``policy_kwargs``, and merged with a trial's values.
+"""The yml files: which one ``sppo-train`` reads without ``-conf``, and their ``*_kwargs`` strings, evaluated as
+rl-zoo3 evaluates ``policy_kwargs`` and merged with a trial's values.
 
 Imports nothing else of :mod:`sppo_sb3.zoo` (the bottom of the package, with :mod:`~sppo_sb3.zoo.samplers`); also used
 by the benchmark scripts to read the yml files without rl-zoo3's ``ExperimentManager``.
@@ -14,10 +15,58 @@ import torch as th
 import yaml
 from torch import nn
 
+from sppo_sb3.algorithms import ALGORITHMS, HYPERPARAMS_DIR
+
 #: ``*_kwargs`` keys that rl-zoo3 handles itself (the others are evaluated when given as strings)
 _ZOO_KWARGS_KEYS = frozenset({"policy_kwargs", "replay_buffer_kwargs", "monitor_kwargs", "env_kwargs", "normalize_kwargs"})
 #: yml keys that configure rl-zoo3's run, not the algorithm's constructor
 _ZOO_ONLY_KEYS = frozenset({"n_timesteps", "n_envs", "normalize", "env_wrapper", "frame_stack", "callback", "vec_env_wrapper"})
+#: the folders of :data:`~sppo_sb3.algorithms.HYPERPARAMS_DIR` that hold the default hyperparameters of a task family
+#: whose tasks the top-level ``ALGO.yml`` does not have (Safety-Gymnasium's velocity tasks, the dm_control tasks), in
+#: the order :func:`default_config` reads them
+FAMILY_FOLDERS: tuple[str, ...] = ("velocity", "dmc")
+
+
+def _entries(path: Path) -> dict[str, Any]:
+    with open(path) as file:
+        return dict(yaml.safe_load(file) or {})
+
+
+def default_config(algo: str, env_id: str, hyperparams_dir: Path = HYPERPARAMS_DIR) -> Path | None:
+    """The yml file ``sppo-train`` reads for ``algo`` on ``env_id`` when no ``-conf`` is given: the package's own.
+
+    That is the first of ``ALGO.yml`` and ``FAMILY/ALGO.yml`` (:data:`FAMILY_FOLDERS`) in ``hyperparams_dir`` that has
+    an entry for the task, else a top-level ``ALGO.yml`` with a ``default`` entry. Where the package has none, rl-zoo3's
+    own ``hyperparams/ALGO.yml`` applies (``None``; e.g. ``ppo`` on ``CartPole-v1``), except for the package's
+    algorithms, which rl-zoo3 has no file for.
+
+    :param algo: the ``--algo`` name.
+    :param env_id: the task's gymnasium id.
+    :param hyperparams_dir: the folder of the package's yml files.
+    :return: the file, or ``None`` for rl-zoo3's own.
+    :raises FileNotFoundError: the package's folder is missing (a checkout without its ``sppo_sb3/hyperparams`` symlink).
+    :raises ValueError: ``algo`` is one of the package's algorithms and no file of the package has the task.
+    """
+    if not hyperparams_dir.is_dir():
+        raise FileNotFoundError(
+            f"{hyperparams_dir}: the package's hyperparameter folder is missing (in a checkout, sppo_sb3/hyperparams is a "
+            "symlink to ../hyperparams: clone with `git config core.symlinks true`); pass -conf FILE meanwhile"
+        )
+    candidates = [hyperparams_dir / f"{algo}.yml", *(hyperparams_dir / folder / f"{algo}.yml" for folder in FAMILY_FOLDERS)]
+    existing = [path for path in candidates if path.is_file()]
+    for path in existing:
+        if env_id in _entries(path):
+            return path
+    top = candidates[0]
+    if top.is_file() and "default" in _entries(top):
+        return top
+    if algo in ALGORITHMS:
+        looked = ", ".join(str(path.relative_to(hyperparams_dir)) for path in existing) or f"no {algo}.yml at all"
+        raise ValueError(
+            f"the package has no {algo} hyperparameters for {env_id} (looked in {hyperparams_dir}: {looked}); "
+            f"pass -conf FILE with an entry for {env_id}"
+        )
+    return None
 
 
 def eval_yml_string(source: str) -> Any:
