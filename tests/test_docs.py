@@ -1,4 +1,5 @@
-"""The ``## Parameters`` tables of ``docs/modules/*.md`` follow the algorithms' docstrings (:mod:`sppo_sb3.docs_tables`).
+"""The ``## Parameters`` tables of ``docs/modules/*.md`` follow the algorithms' docstrings (``scripts/parameter_tables.py``,
+a tool of the repository, not of the installed package: imported here from its path).
 
 Every algorithm of :data:`sppo_sb3.algorithms.ALGORITHMS` is covered, a future one included: its page must exist and
 hold the generated table between the markers, and every argument of its constructor needs a ``:param:`` entry.
@@ -6,18 +7,32 @@ hold the generated table between the markers, and every argument of its construc
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import subprocess
 import sys
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
-from sppo_sb3 import docs_tables
 from sppo_sb3.algorithms import ALGORITHMS
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "parameter_tables.py"
+
+
+def _load_script(path: Path) -> ModuleType:
+    """Import the script at ``path`` as a module (``scripts/`` is no package)."""
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    assert spec is not None and spec.loader is not None, f"cannot import {path}"
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[path.stem] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+docs_tables = _load_script(SCRIPT)
 
 
 @pytest.mark.parametrize("name", list(ALGORITHMS))

@@ -35,7 +35,6 @@ FLOORS: tuple[tuple[str, ...], ...] = (
     (  # what uses the algorithms: deployment evaluation, the zoo, the CLIs, the benchmark, the package's front door
         "sppo_sb3",
         "sppo_sb3.evaluation",
-        "sppo_sb3.docs_tables",
         "sppo_sb3.zoo",
         "sppo_sb3.train",
         "sppo_sb3.enjoy",
