@@ -1,9 +1,11 @@
 """``sppo-train`` / ``python -m sppo_sb3.train``: rl-zoo3's train command with the package's algorithms.
 
 Every rl-zoo3 flag works unchanged (``--algo sppo --env SafePointCircle-v0 -conf hyperparams/sppo.yml``,
-``-optimize``, ``--storage``, ...). On top of the zoo (see :mod:`sppo_sb3.zoo`): ``monitor.csv`` has the columns
-``episode_cost`` and ``episode_violations``, evaluations log ``eval/mean_cost``, the safety summary is printed at the
-end, and two extra flags set the violation budget of hyperparameter search:
+``-optimize``, ``--storage``, ...); without ``-conf``, the package's own hyperparameters are read (shipped in the wheel,
+:func:`sppo_sb3.zoo.hyperparams.default_config`). On top of the zoo (see :mod:`sppo_sb3.zoo`): ``monitor.csv`` has the
+columns ``episode_cost`` and ``episode_violations``, evaluations log ``eval/mean_cost``, the safety summary is printed
+at the end with a line of legend (:data:`EXTRA_HELP` explains its terms, ``docs/guide/cli.md`` every field of
+``safety_summary.json``), and two extra flags set the violation budget of hyperparameter search:
 
 ``--violation-budget B``  prune trials whose cumulative training violations exceed ``B`` (env: SPPO_VIOLATION_BUDGET)
 ``--violation-penalty P``  instead of pruning, objective = return - P * max(0, violations - B) (env: SPPO_VIOLATION_PENALTY)
@@ -29,6 +31,23 @@ sppo_sb3 options (besides rl-zoo3's):
   --deployment-episodes N
                          after training, evaluate the learned policy for N deterministic episodes with and without
                          the shield (deployment safety; default 5, 0: skip)
+  -conf FILE             as in rl-zoo3; without it, the package's own hyperparams/ALGO.yml (velocity/ALGO.yml or
+                         dmc/ALGO.yml for those task families), shipped with the package
+
+safety outputs (the summary printed at the end of training, also saved to <run folder>/safety_summary.json; every
+field of that file is described in the package's docs, docs/guide/cli.md):
+  violations             env steps whose info["cost"] is positive, i.e. steps in the task's unsafe set;
+                         "cumulative violations": over all of training; elsewhere: per episode
+  safety rate            % of the finished training episodes without a single violation (100 before one ends)
+  interventions          env steps at which the shield replaced the policy's action with its backup action
+                         ("shield interventions": over all of training; 0 where nothing shields the algorithm)
+  cost                   sum of info["cost"] over an episode (the package's tasks give 1 per unsafe step, so
+                         cost = violations there); "eval/mean_cost": the periodic evaluations of --eval-freq
+  eval/                  the final policy deployed WITH its shield for --deployment-episodes deterministic episodes:
+                         mean_reward (return), mean_violations and mean_interventions (per episode),
+                         safe_episode_rate (% of the episodes without a violation)
+  eval_unshielded/       the same policy deployed WITHOUT the shield (the same four figures): how safe the learned
+                         policy is on its own, as Corollary 1 of the paper bounds it
 """
 
 

@@ -27,6 +27,13 @@ from sppo_sb3.zoo.budget import penalised_objective, resolve_violation_budget
 from sppo_sb3.zoo.hyperparams import default_config, eval_kwargs_strings, merge_kwargs
 
 DEFAULT_DEPLOYMENT_EPISODES = 5
+#: the line of legend under the safety summary at the end of training (``sppo-train -h`` says more)
+SAFETY_LEGEND = (
+    "legend: violations = env steps with a positive cost (unsafe steps); safety rate = % of training episodes without "
+    "a violation; interventions = steps where the shield replaced the action; eval/ = the final policy deployed with "
+    "the shield, eval_unshielded/ = without it (safe_episode_rate: % of its episodes without a violation); "
+    "sppo-train -h explains more, and safety_summary.json in the run folder keeps these figures"
+)
 
 
 def _given_config(args: tuple[Any, ...], kwargs: dict[str, Any]) -> str | None:
@@ -112,8 +119,9 @@ class SafeExperimentManager(ExperimentManager):
 
         The summary holds the paper's training-safety metrics (Section V-B-2: cumulative constraint violations,
         safety rate) with the episodes' return and the shield's interventions, and the final policy's deployments with
-        and without the shield. A model that keeps no safety metrics (rl-zoo3's own algorithms, whose training costs
-        are in ``monitor.csv``) gets the deployments only.
+        and without the shield, then a line of legend (:data:`SAFETY_LEGEND`). A model that keeps no safety metrics
+        (rl-zoo3's own algorithms, whose training costs are in ``monitor.csv``) gets the deployments only.
+        ``docs/guide/cli.md`` describes every field of the file.
 
         :param model: the trained model.
         """
@@ -137,6 +145,7 @@ class SafeExperimentManager(ExperimentManager):
                 )
                 summary = {**summary, "eval_mean_reward": callback.last_mean_reward}
                 summary["eval_mean_cost"] = callback.last_mean_cost
+        print(SAFETY_LEGEND)
         Path(self.save_path).mkdir(parents=True, exist_ok=True)
         with open(os.path.join(self.save_path, "safety_summary.json"), "w") as file:
             json.dump({"num_timesteps": int(model.num_timesteps), **summary}, file, indent=2)
