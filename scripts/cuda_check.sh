@@ -25,7 +25,7 @@ python3 -c "import torch; assert torch.cuda.is_available(), 'no CUDA device'; pr
 python3 -m pip install -q --no-index --no-deps .wheels/*.whl
 python3 -m pip install -q --no-index --no-deps --no-build-isolation -e .
 export PYTHONUNBUFFERED=1
-timeout 180 python3 -m pytest -q -p no:cacheprovider -m cuda tests/test_compile.py 2>&1 | tee "$out/cuda_tests.txt"
+timeout 180 python3 -m pytest -q -p no:cacheprovider -m cuda tests/sppo/test_compile.py 2>&1 | tee "$out/cuda_tests.txt"
 timeout 150 python3 scripts/bench_planner.py --quick --devices cuda --sizes td-mpc --json "$out/planner.json" 2>&1 | grep -v '^W' | tee "$out/planner.txt"
 timeout 150 python3 scripts/bench_training.py --device cuda --envs HalfCheetah-v5 SafePointCircle-v0 --steps 500 2>&1 \
   | grep -v '^W' | tee "$out/training.txt"

@@ -5,7 +5,7 @@ cores (and the subprocesses of the CLI tests more); oversubscribed BLAS threads 
 
 ``TORCH_COMPILE_DISABLE=1`` (PyTorch's own switch, inherited by the CLI tests' subprocesses) makes SPPO's
 ``compile="auto"`` run the eager reference: compiling each test's network shapes would cost more than the tests.
-``tests/test_compile.py`` turns compilation back on to test the compiled paths against the eager ones. The examples
+``tests/sppo/test_compile.py`` turns compilation back on to test the compiled paths against the eager ones. The examples
 are imported once, by ``load_example``.
 """
 

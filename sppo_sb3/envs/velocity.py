@@ -15,7 +15,7 @@ definitions on gymnasium's MuJoCo ``<Robot>-v4`` envs, which gymnasium 1.x still
   not end the episode (a CMDP with a cost limit); the registered TimeLimit truncates after 1000 steps.
 
 The env reads the velocity from the v4 env's own ``info["x_velocity"]`` (and ``info["y_velocity"]``), so the cost is
-measured on exactly the positions that the reward is: ``tests/test_velocity.py`` recomputes it from ``env.data``.
+measured on exactly the positions that the reward is: ``tests/envs/test_velocity_tasks.py`` recomputes it from ``env.data``.
 
 The module holds the physics only; shielding rules belong to :mod:`sppo_sb3.shield`, one per ``task.env_id`` of
 :data:`VELOCITY_TASKS`.

@@ -30,7 +30,7 @@ from sppo_sb3.common.monitor import COST_INFO_KEYWORDS, CostEvalCallback, Episod
 from sppo_sb3.evaluation import deployment_rule
 from sppo_sb3.shield import ShieldingRule, ShieldWrapper
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 HYPERPARAMS = REPO / "hyperparams"
 ENV = "SafePointCircle-v0"
 SHORT_EPISODES = ["--env-kwargs", "max_episode_steps:50"]

@@ -13,7 +13,7 @@ import yaml
 
 from sppo_sb3.experiments import benchmark, grid, layout, plan
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 POINT, CHEETAH = "SafePointCircle-v0", "SafeHalfCheetahHeight-v1"
 #: (task, algo, seed): steps, wall-clock seconds, training steps/s (NaN: no finished episode)
 RUNS: dict[tuple[str, str, int], tuple[int, float, float]] = {

@@ -1,6 +1,7 @@
 """The shield fails closed, speaks up, checks the rules it is given, and tells off-policy learners the truth.
 
-Each test names the failure mode of issue 16 it covers.
+Each test names the failure it covers: non-finite values execute the backup, a rule that cannot be checked raises,
+and an off-policy learner behind the wrapper sees what was executed.
 """
 
 from __future__ import annotations

@@ -20,7 +20,7 @@ from tiny_hyperparams import tiny_pdo_yml
 from sppo_sb3.experiments import benchmark, configs, display, grid, layout, plot, stats, tables
 from sppo_sb3.experiments.spec import run_name
 
-SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
 TASK = "SafePointCircle-v0"
 ALGOS = ("pdo", "sailr")
 SEEDS = (0, 1)
@@ -174,7 +174,7 @@ def test_default_grid_holds_the_papers_five_algorithms() -> None:
 
     assert grid.OUR_ALGOS == plan.PAPER_ALGOS == ("sppo", "pdo", "cpo", "sailr", "csc")
     assert not ALGORITHMS["saclag"].paper and "saclag" not in grid.OUR_ALGOS
-    config = configs.resolve_config("saclag", TASK, Path(__file__).resolve().parents[1] / "hyperparams")
+    config = configs.resolve_config("saclag", TASK, Path(__file__).resolve().parents[2] / "hyperparams")
     assert config is not None and f"{TASK}:" in config  # hyperparams/saclag.yml: a grid may name it
 
 

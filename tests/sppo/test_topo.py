@@ -1,5 +1,5 @@
 """TOPO's targets pinned to the paper's equations, on networks whose outputs are set by hand: a bug shared by the eager
-and the compiled update (which ``tests/test_compile.py`` compares with each other) fails here.
+and the compiled update (which ``tests/sppo/test_compile.py`` compares with each other) fails here.
 
 - the TD target of eq. 16 is ``r + γ (1 - d) min Q⁻(z', π(z'))``: the *target* network's twin heads, their minimum, no
   bootstrap after a terminal;

@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
-from test_shield_quality import point_pairs
+from test_quality import point_pairs
 from tiny_hyperparams import TINIEST_TOLD
 
 import sppo_sb3  # noqa: F401  (registers the tasks)

@@ -28,7 +28,7 @@ from sppo_sb3.experiments.velocity import (
 )
 
 EPISODE = 1000
-SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
 
 
 def _curve(returns: list[float], costs: list[float]) -> pd.DataFrame:

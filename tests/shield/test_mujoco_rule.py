@@ -1,7 +1,7 @@
 """The general MuJoCo rule: the state rebuilt from observations, constraints on it, certificates, failing closed.
 
 Gymnasium's own ``*-v4`` envs are the tasks here (with the velocity constraints of Safety-Gymnasium's velocity tasks,
-``tests/test_velocity.py`` tests the tasks themselves).
+``tests/envs/test_velocity_tasks.py`` tests the tasks themselves).
 """
 
 from __future__ import annotations

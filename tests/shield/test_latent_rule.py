@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_shield_quality import point_pairs
+from test_quality import point_pairs
 from tiny_hyperparams import TINIEST_TOLD, TINY_SPPO, TINY_TOLD
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
