@@ -27,10 +27,10 @@ import torch as th
 from torch import nn
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from tiny_hyperparams import TINY_CPO, TINY_CSC, TINY_PDO, TINY_SACLAG, TINY_SAILR, TINY_SPPO  # noqa: E402
+from tiny_hyperparams import TINY_CPO, TINY_CSC, TINY_PDO, TINY_SACLAG, TINY_SAILR, TINY_SPPO
 
-from sppo_sb3 import CPO, CSC, PDO, SAILR, SPPO, SACLag  # noqa: E402
-from sppo_sb3.shield import LatentModelRule, LearnedCostCriticRule, LearnedDynamicsRule  # noqa: E402
+from sppo_sb3 import CPO, CSC, PDO, SAILR, SPPO, SACLag
+from sppo_sb3.shield import LatentModelRule, LearnedCostCriticRule, LearnedDynamicsRule
 
 POINT, CHEETAH, HOPPER = "SafePointCircle-v0", "SafeHalfCheetahHeight-v1", "sppo_sb3/SafetyHopperVelocity-v1"
 
@@ -64,7 +64,8 @@ def learned_rule_modules(model: Any) -> list[nn.Module]:
     rule = getattr(model, "shield_rule", None)
     if not isinstance(rule, (LatentModelRule, LearnedCostCriticRule, LearnedDynamicsRule)):
         return []
-    return [value for value in vars(rule).values() if isinstance(value, nn.Module) and value is not getattr(rule, "model", None)]
+    told = getattr(rule, "model", None)  # the latent rule's TOLD is the policy's, fingerprinted with it
+    return [value for value in vars(rule).values() if isinstance(value, nn.Module) and value is not told]
 
 
 def fingerprint(make: Callable[[], Any], steps: int) -> dict[str, Any]:
