@@ -32,6 +32,7 @@ from sppo_sb3.sppo.compile import CompiledFunction, CompileMode, check_compile_m
 from sppo_sb3.sppo.optim import init_optimizer_state, supports_tensor_step
 from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
 from sppo_sb3.sppo.policies import TOLDPolicy
+from sppo_sb3.sppo.time_scale import PAPER_GAMMA, episode_discount, episode_length_of
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, topo_update
 
 SelfSPPO = TypeVar("SelfSPPO", bound="SPPO")
@@ -69,7 +70,10 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
     :param learning_starts: warm-up steps with random (shielded) actions before planning and training.
     :param batch_size: sequences per TOPO update.
     :param tau: EMA coefficient of the target network (Alg. 3 line 13).
-    :param gamma: discount.
+    :param gamma: discount of eqs. 10 and 16: a number (the paper's and TD-MPC's 0.99), or ``"auto"``: from the task's
+        episode length, TD-MPC2's rule (:func:`~sppo_sb3.sppo.time_scale.episode_discount`: 0.99 for 500 steps, 0.995
+        for 1000), so that the discount spans the same time on robots with short steps; the resolved value is
+        :attr:`gamma`.
     :param train_freq: update the model every ``train_freq`` steps.
     :param gradient_steps: TOPO updates per rollout.
     :param horizon: length ``H`` of the sequences TOPO trains on.
@@ -142,7 +146,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         learning_starts: int = 5000,
         batch_size: int = 512,
         tau: float = 0.01,
-        gamma: float = 0.99,
+        gamma: float | Literal["auto"] = 0.99,
         train_freq: int | tuple[int, str] = 1,
         gradient_steps: int = 1,
         horizon: int = 5,
@@ -178,7 +182,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             learning_starts=learning_starts,
             batch_size=batch_size,
             tau=tau,
-            gamma=gamma,
+            gamma=PAPER_GAMMA if gamma == "auto" else gamma,
             train_freq=train_freq,
             gradient_steps=gradient_steps,
             replay_buffer_class=ShieldedReplayBuffer,
@@ -207,8 +211,10 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
                 f"refine_backup_fraction is a share of the warm-up steps, in [0, 1]; got {refine_backup_fraction}."
             )
         self.refine_backup_fraction = refine_backup_fraction
-        self.planner_config = MPPIConfig(**{"gamma": gamma, "horizon": horizon, **(planner_kwargs or {})})
-        self.topo_config = TOPOConfig(**{"gamma": gamma, **(topo_kwargs or {})})
+        if gamma == "auto" and self.env is not None:
+            self.gamma = episode_discount(episode_length_of(self.env))
+        self.planner_config = MPPIConfig(**{"gamma": self.gamma, "horizon": horizon, **(planner_kwargs or {})})
+        self.topo_config = TOPOConfig(**{"gamma": self.gamma, **(topo_kwargs or {})})
         self.plan_at_predict = plan_at_predict
         self.shield_at_predict = shield_at_predict
         check_compile_mode(compile)

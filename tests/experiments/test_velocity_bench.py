@@ -5,12 +5,15 @@ from __future__ import annotations
 import importlib.util
 import sys
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import pandas as pd
 import pytest
+from tiny_hyperparams import TINY_SPPO
 
+from sppo_sb3 import SPPO
 from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY
 from sppo_sb3.envs.velocity import ANT
 from sppo_sb3.experiments import layout, plot, stats
@@ -192,3 +195,30 @@ def test_deployment_falls_counts_the_falls_after_an_intervention(monkeypatch: py
     report = deployment.report("with the shield")
     assert report.startswith("with the shield: return 5.0, length 5.0, fell in 3 of 3 episodes, cost 1.0 and 1.0")
     assert "3 falls came after an intervention: 3 within 10 steps of it (median 2 steps)" in report
+
+
+def load_value_diagnostic(monkeypatch: pytest.MonkeyPatch) -> Any:
+    spec = importlib.util.spec_from_file_location("value_diagnostic", SCRIPTS / "value_diagnostic.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    monkeypatch.setitem(sys.modules, spec.name, module)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_value_diagnostic_return_to_go(monkeypatch: pytest.MonkeyPatch) -> None:
+    diagnostic = load_value_diagnostic(monkeypatch)
+    returns = diagnostic.discounted_return_to_go(np.array([1.0, 2.0, 3.0]), 0.5, bootstrap=8.0)
+    np.testing.assert_allclose(returns, [1 + 0.5 * 2 + 0.25 * 3 + 0.125 * 8, 2 + 0.5 * 3 + 0.25 * 8, 3 + 0.5 * 8])
+
+
+def test_value_diagnostic_reports_q_beside_the_return_before_falls(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    diagnostic = load_value_diagnostic(monkeypatch)
+    model = SPPO("TOLDPolicy", "sppo_sb3/SafetyHopperVelocity-v1", seed=0, **{**TINY_SPPO, "learning_starts": 50})
+    model.learn(60).save(tmp_path / "hopper")
+    diagnostic.main([str(tmp_path / "hopper.zip"), "--env", "sppo_sb3/SafetyHopperVelocity-v1", "--episodes", "2"])
+    out = capsys.readouterr().out
+    assert "2 episodes" in out and "ended in a fall" in out
+    assert "| 1–10 |" in out  # an untrained Hopper falls within its first hundred steps

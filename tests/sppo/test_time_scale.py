@@ -1,0 +1,50 @@
+"""The discount from the task's time scale (``gamma="auto"``): TD-MPC2's rule from the episode length."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium as gym
+import pytest
+from tiny_hyperparams import TINY_SPPO
+
+from sppo_sb3 import SPPO
+from sppo_sb3.sppo.time_scale import PAPER_GAMMA, episode_discount
+
+
+@pytest.mark.parametrize(
+    ("length", "gamma"),
+    [(500, 0.99), (1000, 0.995), (10_000, 0.995), (100, 0.95), (50, 0.95), (250, 0.98), (None, PAPER_GAMMA)],
+)
+def test_episode_discount_follows_the_episode_length(length: int | None, gamma: float) -> None:
+    assert episode_discount(length) == pytest.approx(gamma)
+
+
+def test_episode_discount_rejects_a_non_positive_length() -> None:
+    with pytest.raises(ValueError, match="positive number of steps"):
+        episode_discount(0)
+
+
+@pytest.mark.parametrize(("env_id", "gamma"), [("SafePointCircle-v0", 0.99), ("sppo_sb3/SafetyHopperVelocity-v1", 0.995)])
+def test_auto_gamma_reaches_the_planner_and_the_update(env_id: str, gamma: float) -> None:
+    model = SPPO("TOLDPolicy", env_id, gamma="auto", **TINY_SPPO)
+    assert model.gamma == pytest.approx(gamma)
+    assert model.planner_config.gamma == model.topo_config.gamma == model.gamma
+
+
+def test_auto_gamma_without_a_time_limit_is_the_papers() -> None:
+    env = gym.make("SafePointCircle-v0").unwrapped  # no spec's time limit left
+    env.spec = None
+    assert SPPO("TOLDPolicy", env, gamma="auto", shield=None, **TINY_SPPO).gamma == PAPER_GAMMA
+
+
+def test_a_number_is_the_discount_as_given() -> None:
+    model = SPPO("TOLDPolicy", "sppo_sb3/SafetyHopperVelocity-v1", gamma=0.99, **TINY_SPPO)
+    assert model.gamma == model.planner_config.gamma == model.topo_config.gamma == 0.99
+
+
+def test_the_resolved_discount_is_saved(tmp_path: Path) -> None:
+    model = SPPO("TOLDPolicy", "sppo_sb3/SafetyHopperVelocity-v1", gamma="auto", **TINY_SPPO)
+    model.save(tmp_path / "model")
+    loaded = SPPO.load(tmp_path / "model")
+    assert loaded.gamma == loaded.planner_config.gamma == loaded.topo_config.gamma == pytest.approx(0.995)
