@@ -52,20 +52,30 @@ def read_monitor_curve(zoo_dir: Path) -> pd.DataFrame:
     return curve
 
 
-def model_timesteps(zoo_dir: Path) -> int | None:
-    """``num_timesteps`` of the final model that rl-zoo3 saved (``<env>.zip``; SB3 stores it in the zip's ``data``).
+def final_model_path(zoo_dir: Path) -> Path | None:
+    """The final model that rl-zoo3 saved, ``<algo>/<env>_<id>/<env>.zip`` (not ``best_model.zip`` or checkpoints).
 
     :param zoo_dir: rl-zoo3's log folder of the run.
     """
-    for path in sorted(zoo_dir.glob("*/*/*.zip")):  # <algo>/<env>_<id>/<env>.zip, not best_model.zip or checkpoints
-        if path.stem == "best_model" or "_steps" in path.stem:
-            continue
-        try:
-            with zipfile.ZipFile(path) as archive:
-                return int(json.loads(archive.read("data"))["num_timesteps"])
-        except (KeyError, ValueError, OSError, zipfile.BadZipFile):
-            return None
+    for path in sorted(zoo_dir.glob("*/*/*.zip")):
+        if path.stem != "best_model" and "_steps" not in path.stem:
+            return path
     return None
+
+
+def model_timesteps(zoo_dir: Path) -> int | None:
+    """``num_timesteps`` of the final model that rl-zoo3 saved (SB3 stores it in the zip's ``data``).
+
+    :param zoo_dir: rl-zoo3's log folder of the run.
+    """
+    path = final_model_path(zoo_dir)
+    if path is None:
+        return None
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return int(json.loads(archive.read("data"))["num_timesteps"])
+    except (KeyError, ValueError, OSError, zipfile.BadZipFile):
+        return None
 
 
 def model_safety_summary(zoo_dir: Path) -> dict[str, Any] | None:
@@ -84,6 +94,7 @@ def summarize(
     wall_s: float,
     cmd: Sequence[str],
     timesteps: int | None = None,
+    provenance: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """The ``summary.json`` of a run.
 
@@ -100,6 +111,8 @@ def summarize(
     :param cmd: the train command.
     :param timesteps: env steps of the run (the saved model's ``num_timesteps``); ``None``: the safety summary's, else
         the finished episodes' total length.
+    :param provenance: where the run came from (:func:`~sppo_sb3.experiments.provenance.run_provenance`: the
+        commit, the resolved hyperparameters, the installed packages), stored under ``provenance``.
     """
     last = curve.tail(spec.last_n)
     episodes = len(curve)
@@ -139,6 +152,8 @@ def summarize(
         if "eval_mean_reward" in safety:
             summary["eval_mean_reward"] = float(safety["eval_mean_reward"])
         summary.update(deployment_summary(safety.get("deployment", {})))
+    if provenance is not None:
+        summary["provenance"] = provenance
     return summary
 
 

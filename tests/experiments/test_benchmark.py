@@ -111,6 +111,10 @@ def test_runner_writes_curves_and_summaries(grid_out: Path) -> None:
             assert 0.0 <= summary["safety_rate"] <= 100.0
             assert summary["safety_source"] == "safety_metrics"  # the package's algorithms keep SafetyMetrics
             assert "-m sppo_sb3.train" in summary["command"] and f"--seed {seed}" in summary["command"]
+            provenance = summary["provenance"]  # where the figures came from: code, settings, packages
+            assert len(provenance["commit"]) == 40 and isinstance(provenance["dirty"], bool)
+            assert provenance["packages"]["torch"] and provenance["packages"]["stable-baselines3"]
+            assert provenance["hyperparameters"]["seed"] == seed and 0 < provenance["hyperparameters"]["gamma"] < 1
 
 
 def test_runner_skips_finished_runs(grid_out: Path, tiny_hyperparams: Path, capsys: pytest.CaptureFixture[str]) -> None:
