@@ -5,6 +5,11 @@
 step before the first intervention ``T`` of an episode; at ``T``, ``B̃`` records ``(s_T, a_T, R̃, terminal)`` with the
 planner's proposed ``a_T``, and after ``T`` the paper's ``M̃`` stays in ``s†``, so ``B̃`` holds nothing more of that
 episode. ``B̃`` is therefore a view of ``B`` plus one action column and two flags — no second copy of the data.
+
+That relabel assumes, as the paper's tasks do, that a violation ends the episode. Where it does not (a CMDP such as
+the velocity tasks, whose cost limit counts every violating step), an intervention need not be a death: ``"continue"``
+keeps the proposal and its penalty ``R̃`` but bootstraps from the real next state, and ``"none"`` learns from ``B``
+as it is (the learner never sees a proposal the shield rejected).
 """
 
 from __future__ import annotations
@@ -20,7 +25,8 @@ from stable_baselines3.common.vec_env import VecNormalize
 from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY, PROPOSED_ACTION_KEY, SHAPED_COST_KEY
 from sppo_sb3.shield.learned.base import CostTransitions
 
-AbsorbingMode = Literal["terminate", "restart"]
+AbsorbingMode = Literal["terminate", "restart", "continue", "none"]
+ABSORBING_MODES: tuple[AbsorbingMode, ...] = ("terminate", "restart", "continue", "none")
 
 
 class SequenceSamples(NamedTuple):
@@ -32,7 +38,8 @@ class SequenceSamples(NamedTuple):
     :param next_observations: ``(L, B, obs_dim)`` next states, targets of the consistency loss (eq. 17).
     :param terminals: ``(L, B)`` 1 where the step ends in a terminal (no bootstrap in eq. 16).
     :param mask: ``(L, B)`` 1 where the step belongs to the sequence (not past an episode end or the write head).
-    :param consistency_mask: ``(L, B)`` ``mask`` without absorbing steps, whose next state ``s†`` has no observation.
+    :param consistency_mask: ``(L, B)`` ``mask`` without the relabelled steps, whose next state did not follow their
+        action (``s†`` of an absorbing relabel has no observation; under ``"continue"`` the backup led to ``s'``).
     """
 
     observations: th.Tensor
@@ -52,9 +59,16 @@ class ShieldedReplayBuffer(ReplayBuffer):
     :meth:`sample_sequences` draws sequences of ``B̃`` for TOPO; :meth:`sample_cost_transitions` draws the real
     transitions a learned shielding rule is fitted on.
 
-    :param absorbing: ``"terminate"`` (the paper's ``M̃``: nothing more of an episode after its first intervention)
-        or ``"restart"`` (every intervention is an absorbing terminal, and ``B̃`` restarts at the next real state).
-    :param penalty: ``R̃``, the reward of the absorbing transition (eq. 7).
+    :param absorbing: how ``B̃`` relabels an intervention at step ``T``:
+
+        - ``"terminate"``: the paper's ``M̃``: ``(s_T, a_T, R̃)`` is an absorbing terminal, and nothing more of the
+          episode is learned;
+        - ``"restart"``: every intervention is an absorbing terminal, and ``B̃`` restarts at the next real state;
+        - ``"continue"``: ``(s_T, a_T, r_T + R̃, s_(T+1))`` without a terminal: the proposal is penalised by ``R̃``
+          and its value bootstrapped from the real next state, the one the backup led to (tasks where a violation does
+          not end the episode). TOLD's latent roll stops there, since ``s_(T+1)`` did not follow ``a_T``;
+        - ``"none"``: no relabel, ``B̃ = B``: the executed action, its reward and next state.
+    :param penalty: ``R̃``, the reward of the absorbing transition (eq. 7), or the penalty added under ``"continue"``.
     """
 
     def __init__(
@@ -71,8 +85,8 @@ class ShieldedReplayBuffer(ReplayBuffer):
     ) -> None:
         if optimize_memory_usage:
             raise ValueError("ShieldedReplayBuffer keeps next observations explicitly: use optimize_memory_usage=False.")
-        if absorbing not in ("terminate", "restart"):
-            raise ValueError(f"absorbing must be 'terminate' or 'restart', got {absorbing!r}.")
+        if absorbing not in ABSORBING_MODES:
+            raise ValueError(f"absorbing must be one of {', '.join(map(repr, ABSORBING_MODES))}, got {absorbing!r}.")
         super().__init__(buffer_size, observation_space, action_space, device, n_envs, False, handle_timeout_termination)
         assert isinstance(action_space, spaces.Box)
         self.absorbing, self.penalty = absorbing, penalty
@@ -152,19 +166,24 @@ class ShieldedReplayBuffer(ReplayBuffer):
     def sample_sequences(self, batch_size: int, length: int, env: VecNormalize | None = None) -> SequenceSamples:
         """Sample ``batch_size`` sequences of ``length`` steps of ``B̃`` that never cross an episode end.
 
-        Steps after an episode end (termination, truncation or absorbing intervention), after the write head or
-        outside ``B̃`` are masked out.
+        Steps after an episode end (termination, truncation, or an intervention relabelled with the proposal), after the
+        write head or outside ``B̃`` are masked out.
         """
         starts, envs = self._sample_starts(batch_size)
         offsets = np.arange(length)[:, None]
         idx = (starts[None] + offsets) % self.buffer_size  # (L, B)
-        intervened = self.intervened[idx, envs]
-        ends = self.dones[idx, envs].astype(bool) | intervened
+        relabelled = self.intervened[idx, envs] & (self.absorbing != "none")  # steps whose action is the proposal
+        ends = self.dones[idx, envs].astype(bool) | relabelled
         crossed = np.cumsum(np.concatenate([np.zeros((1, batch_size), bool), ends[:-1]]), axis=0) > 0
         mask = (offsets < self._available(starts)[None]) & ~crossed & self.relabel_valid[idx, envs]
-        actions = np.where(intervened[..., None], self.proposed_actions[idx, envs], self.actions[idx, envs])
-        rewards = np.where(intervened, self.penalty, self.rewards[idx, envs])
-        terminals = (self.dones[idx, envs] * (1 - self.timeouts[idx, envs])).astype(bool) | intervened
+        actions = np.where(relabelled[..., None], self.proposed_actions[idx, envs], self.actions[idx, envs])
+        real_terminals = (self.dones[idx, envs] * (1 - self.timeouts[idx, envs])).astype(bool)
+        if self.absorbing == "continue":
+            rewards = np.where(relabelled, self.rewards[idx, envs] + self.penalty, self.rewards[idx, envs])
+            terminals = real_terminals
+        else:
+            rewards = np.where(relabelled, self.penalty, self.rewards[idx, envs])
+            terminals = real_terminals | relabelled
         data = (
             self._normalize_obs(self.observations[starts, envs], env),
             actions,
@@ -172,6 +191,6 @@ class ShieldedReplayBuffer(ReplayBuffer):
             self._normalize_obs(self.next_observations[idx, envs], env),
             terminals,
             mask,
-            mask & ~intervened,
+            mask & ~relabelled,
         )
         return SequenceSamples(*(self.to_torch(np.asarray(x, dtype=np.float32)) for x in data))

@@ -83,11 +83,15 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         rule) or ``None`` (unshielded, on purpose). The rule in use is :attr:`shield_rule` (``None``:
         unshielded); it is saved with the model, and ``SPPO.load`` raises where it cannot be rebuilt: pass it with
         ``custom_objects={"shield_rule": rule}``, or ``custom_objects={"shield": None}`` to load unshielded.
-    :param absorbing: what ``B̃`` records after an intervention. ``"terminate"`` is the paper's ``M̃`` (nothing more of
-        the episode); ``"restart"`` (default) makes every intervention an absorbing terminal and restarts ``B̃`` at the
-        next real state. "terminate" keeps only one shielded example per episode, so the planner learns slowly which
-        proposals the shield rejects; the two are compared in ``docs/results.md`` (the absorbing MDP).
-    :param absorbing_penalty: ``R̃`` of eq. 7; defaults to the rule's ``penalty``.
+    :param absorbing: what ``B̃`` records at an intervention (:class:`ShieldedReplayBuffer`). ``"terminate"`` is the
+        paper's ``M̃`` (an absorbing terminal with reward ``R̃``, nothing more of the episode); ``"restart"`` (default)
+        makes every intervention an absorbing terminal and restarts ``B̃`` at the next real state; "terminate" keeps
+        only one shielded example per episode, so the planner learns slowly which proposals the shield rejects (the
+        two are compared in ``docs/results.md``). For tasks where a violation does not end the episode (CMDPs with a
+        cost limit, e.g. the velocity tasks): ``"continue"`` keeps the proposal with the penalty ``R̃`` added to the
+        step's reward and bootstraps from the real next state, and ``"none"`` learns from the executed steps alone.
+    :param absorbing_penalty: ``R̃`` of eq. 7 (under ``"continue"``, the penalty of a rejected proposal); defaults to the
+        rule's ``penalty``.
     :param termination_model: give TOLD a termination head, trained on ``B̃``'s terminal flags (absorbing
         interventions and real terminations, not time-limit truncations), and plan with it: eq. 10 adds no reward and
         no value after a predicted absorbing step. ``False`` (default) is TD-MPC's model and the paper's, which plans

@@ -78,3 +78,42 @@ def test_sampling_an_empty_buffer_is_a_clear_error():
     buffer = ShieldedReplayBuffer(10, OBS, ACT, device="cpu")
     with pytest.raises(RuntimeError, match="collect some steps"):
         buffer.sample_sequences(4, 2)
+
+
+def sequences_from(buffer: ShieldedReplayBuffer, start: int, length: int) -> dict[str, np.ndarray]:
+    """The fields of the sampled sequences that start at step ``start`` (one of them; every draw is the same)."""
+    batch = buffer.sample_sequences(256, length)
+    j = int(np.flatnonzero(batch.observations[:, 0].numpy().astype(int) == start)[0])
+    fields = ("actions", "rewards", "terminals", "mask", "consistency_mask")
+    return {name: getattr(batch, name)[:, j].numpy().squeeze() for name in fields}
+
+
+def test_continue_mode_penalises_the_proposal_without_a_terminal():
+    """Where a violation does not end the episode, the rejected proposal costs R̃ and its value bootstraps from s'."""
+    buffer = ShieldedReplayBuffer(100, OBS, ACT, device="cpu", penalty=-3.0, absorbing="continue")
+    fill(buffer, [[False, True, False, False]])
+    assert buffer.relabel_valid[:4, 0].all()
+    seq = sequences_from(buffer, 0, 3)
+    np.testing.assert_array_equal(seq["mask"], [1, 1, 0])  # TOLD's roll stops: s' did not follow the proposal
+    np.testing.assert_allclose(seq["actions"][:2], [0.5, 1.0])  # the proposal (2.0 scaled to 1.0) at the intervention
+    np.testing.assert_allclose(seq["rewards"][:2], [1.0, 1.0 - 3.0])  # its reward plus the penalty
+    np.testing.assert_array_equal(seq["terminals"][:2], [0, 0])  # not a death: the TD target bootstraps from s'
+    np.testing.assert_array_equal(seq["consistency_mask"], [1, 0, 0])
+    after = sequences_from(buffer, 2, 2)  # and learning goes on from the next real state
+    np.testing.assert_array_equal(after["mask"], [1, 1])
+
+
+def test_none_mode_learns_the_executed_steps_as_they_were():
+    buffer = ShieldedReplayBuffer(100, OBS, ACT, device="cpu", penalty=-3.0, absorbing="none")
+    fill(buffer, [[False, True, False, False]])
+    seq = sequences_from(buffer, 0, 3)
+    np.testing.assert_allclose(seq["actions"], [0.5, 0.5, 0.5])  # the executed (backup) action, env units 1.0
+    np.testing.assert_allclose(seq["rewards"], [1.0, 1.0, 1.0])
+    np.testing.assert_array_equal(seq["terminals"], [0, 0, 0])
+    np.testing.assert_array_equal(seq["mask"], [1, 1, 1])  # a real transition: the roll goes on through it
+    np.testing.assert_array_equal(seq["consistency_mask"], [1, 1, 1])
+
+
+def test_an_unknown_mode_is_a_clear_error():
+    with pytest.raises(ValueError, match="'terminate', 'restart', 'continue', 'none'"):
+        ShieldedReplayBuffer(10, OBS, ACT, device="cpu", absorbing="stop")  # type: ignore[arg-type]

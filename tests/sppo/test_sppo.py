@@ -337,3 +337,11 @@ def test_n_updates_is_logged_as_sac_logs_it(train_freq) -> None:
         logged[algo] = [dump.get("train/n_updates") for dump in recorder.dumps]
     assert logged[SPPO] == logged[SAC]
     assert logged[SPPO][-1] is not None and logged[SPPO][-1] > 0
+
+
+@pytest.mark.parametrize("absorbing", ["continue", "none"])
+def test_cmdp_relabels_train_shielded(absorbing: str) -> None:
+    """The relabels for tasks where a violation does not end the episode train end to end, still shielded."""
+    model = tiny_sppo(absorbing=absorbing, absorbing_penalty=-2.0).learn(200)
+    assert model.replay_buffer.absorbing == absorbing and model.replay_buffer.penalty == -2.0
+    assert model.safety_metrics.violations == 0 and model.safety_metrics.interventions > 0
