@@ -2,7 +2,8 @@
 
 The constraint: the pendulum's angular speed must stay at or below 4 rad/s; a faster step is a violation
 (``info["cost"] = 1``) and ends the episode. Swinging up needs about 7.7 rad/s at the bottom, so the constrained
-optimum is to swing as high as the speed limit allows. The rule (see the README's "Designing your own safe task"):
+optimum is to swing as high as the speed limit allows. The rule (see docs/guide/custom_tasks.md, "Designing your own
+safe task"):
 
 - backup ``ζ``: brake — the torque that stops the pendulum in one step, clipped to Pendulum's ±2;
 - ``Q̄(s, a)``: "take ``a``, then brake", rolled on Pendulum's own equations for ``HORIZON`` steps, summing the

@@ -73,7 +73,7 @@ if ENV_ID not in registry:
 
 # ------------------------------------------------------------------------------------------------ 3. the rule
 def upright_rule() -> MujocoShieldingRule:
-    """The general MuJoCo rule on the task's own model; η and α in the shaped cost's units (see docs/custom_tasks.md)."""
+    """The general MuJoCo rule on the task's own model; η and α in the shaped cost's units (see docs/guide/custom_tasks.md)."""
     return MujocoShieldingRule(ENV_ID, TorsoUpright(), alpha=ALPHA, eta=0.2, horizon=10, n_particles=32)
 
 

@@ -8,7 +8,7 @@ The constraint measures the displacement between the exact states at the start a
 task measures a body's position (Ant's torso) or the centre of mass (Humanoid), gymnasium's envs read ``data.xpos`` /
 ``data.xipos`` after ``mj_step``, which with their RK4 integrator hold the kinematics of the integrator's last stage,
 not of the new state: their velocity differs from the exact one by a small part of one physics step's motion. The
-shaped-cost band ``α`` is the margin that covers it (see ``docs/custom_tasks.md``).
+shaped-cost band ``α`` is the margin that covers it (see ``docs/guide/custom_tasks.md``).
 """
 
 from __future__ import annotations
