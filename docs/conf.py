@@ -17,7 +17,7 @@ with open(os.path.join(ROOT, "sppo_sb3", "version.txt")) as file_handler:
 version = release
 project = "sppo_sb3"
 author = "the sppo_sb3 authors"
-copyright = "the sppo_sb3 authors"  # noqa: A001  (Sphinx's name)
+copyright = "the sppo_sb3 authors"
 
 extensions = [
     "myst_parser",
