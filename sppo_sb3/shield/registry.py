@@ -25,7 +25,7 @@ from sppo_sb3.shield.tasks.velocity import velocity_shielding_rule
 
 #: a variant of a task's rule, named ``"<env id>:<variant>"``: pass the name as ``shield`` to train with it
 PAPER_POINT_RULE = "SafePointCircle-v0:paper"
-#: the Point Robot's rule without its model: the dynamics learned, for [learned]'s measurements (SPPO refines it)
+#: the Point Robot's rule without its model: the dynamics learned, for the learned-shield measurements (SPPO refines it)
 LEARNED_POINT_RULE = "SafePointCircle-v0:learned"
 #: the Point Robot's rule on SPPO's own TOLD: cost and backup heads learned on its latents (SPPO only)
 LATENT_POINT_RULE = "SafePointCircle-v0:latent"

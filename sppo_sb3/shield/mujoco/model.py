@@ -117,7 +117,7 @@ class MujocoLayout:
             if not isinstance(model, mujoco.MjModel) or not hasattr(inner, "fullpath"):
                 raise ValueError(
                     f"{name} is not a gymnasium MuJoCo env (no MjModel / MJCF path): MujocoShieldingRule rolls the env's "
-                    "own MuJoCo model. For another simulator write a ShieldingRule (docs/custom_tasks.md)."
+                    "own MuJoCo model. For another simulator write a ShieldingRule (docs/guide/custom_tasks.md)."
                 )
             obs, _ = made.reset(seed=0)
             obs = np.asarray(obs, dtype=np.float64).ravel()
