@@ -1,0 +1,223 @@
+"""The gymnasium env of a navigation task: ``sppo_sb3/Safety<Robot><Task><Level>-v0``.
+
+One step, as Safety-Gymnasium 1.0.0's ``Builder.step``: the action is clipped to the actuators' ranges; the
+simulation advances ``FRAME_SKIP`` MuJoCo steps (gremlins moved before each); then the reward (clipped to ±10), the
+cost terms of every constrained group, the task's clock, and, when the goal is achieved, ``info["goal_met"]`` and a
+new goal (an episode whose goal cannot be re-placed ends, ``terminated``). The registration's TimeLimit truncates
+after the task's episode length (1000 steps, Circle 500).
+
+``info["cost"]`` is 1.0 on a step with any positive cost term, else 0.0 (Safety-Gymnasium's indicator), and the
+terms themselves are in ``info`` under Safety-Gymnasium's names (``cost_hazards``, ``cost_vases_contact``, …), each
+an indicator too. ``info["shaped_cost"]`` is eq. 18's ``max(0, 1 − dist/α)`` of the distance to the nearest
+constrained object (see :meth:`ObjectGroup.distance_to_unsafe`).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import EzPickle
+
+from sppo_sb3.common.costs import shaped_cost
+from sppo_sb3.common.keys import COST_KEY, SHAPED_COST_KEY
+from sppo_sb3.envs.navigation.layout import ResamplingError, random_rotation
+from sppo_sb3.envs.navigation.lidar import NUM_BINS, pseudo_lidar
+from sppo_sb3.envs.navigation.objects import Gremlins
+from sppo_sb3.envs.navigation.robots import ROBOTS
+from sppo_sb3.envs.navigation.tasks import TASKS, NavigationTask
+from sppo_sb3.envs.navigation.world import FRAME_SKIP, World
+
+if TYPE_CHECKING:
+    from gymnasium.envs.mujoco.mujoco_rendering import MujocoRenderer
+
+#: the reward's clip (Safety-Gymnasium's last resort against physics spikes)
+REWARD_CLIP = 10.0
+#: ``info`` key of a step that achieved the goal
+GOAL_MET_KEY = "goal_met"
+
+
+class SafetyNavigationEnv(gym.Env[np.ndarray, np.ndarray], EzPickle):
+    """A Safety-Gymnasium navigation task on gymnasium 1.x and MuJoCo 3+ (see the module).
+
+    The observation is the robot's sensors (accelerometer, velocimeter, gyro, magnetometer; the Car adds its rear
+    ball's angular velocity and rotation matrix) followed by a 16-bin pseudo-lidar per kind of object the task has, in
+    Safety-Gymnasium's order; ``observation_keys`` names its slices.
+
+    :param robot: ``"Point"`` or ``"Car"``.
+    :param task: ``"Goal"``, ``"Button"``, ``"Push"`` or ``"Circle"``.
+    :param level: 0, 1 or 2.
+    :param alpha: the width of the shaped cost's band (eq. 18), in metres.
+    :param render_mode: ``"human"``, ``"rgb_array"`` or ``"depth_array"``.
+    :param width: rendered width in pixels.
+    :param height: rendered height in pixels.
+    :param camera_name: the camera that renders (``"fixednear"``, ``"fixedfar"`` or ``"track"``).
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array", "depth_array"], "render_fps": 30}  # noqa: RUF012
+
+    def __init__(
+        self,
+        robot: str = "Point",
+        task: str = "Goal",
+        level: int = 1,
+        alpha: float = 0.2,
+        render_mode: str | None = None,
+        width: int = 256,
+        height: int = 256,
+        camera_name: str = "fixedfar",
+    ) -> None:
+        EzPickle.__init__(self, robot, task, level, alpha, render_mode, width, height, camera_name)
+        if robot not in ROBOTS:
+            raise ValueError(f"unknown robot {robot!r}: the navigation robots are {', '.join(ROBOTS)}")
+        if task not in TASKS:
+            raise ValueError(f"unknown task {task!r}: the navigation tasks are {', '.join(TASKS)}")
+        if alpha <= 0:
+            raise ValueError(f"alpha (the shaped cost's band, eq. 18) must be > 0 metres, got {alpha}")
+        self.task: NavigationTask = TASKS[task](level, ROBOTS[robot])
+        self.world = World(ROBOTS[robot], self.task.groups)
+        self.alpha = float(alpha)
+        self.render_mode = render_mode
+        self._gremlins = next((group for group in self.task.groups if isinstance(group, Gremlins)), None)
+        self._rng: np.random.RandomState | None = None
+        self.layout: dict[str, np.ndarray] = {}
+        self.observation_keys = self._observation_keys()
+        self.observation_space = self._observation_space()
+        ctrlrange = self.world.model.actuator_ctrlrange
+        self.action_space = spaces.Box(
+            ctrlrange[:, 0].astype(np.float32), ctrlrange[:, 1].astype(np.float32), dtype=np.float32
+        )
+        self._renderer: MujocoRenderer | None = None
+        self._render_size, self._camera_name = (width, height), camera_name
+
+    @property
+    def model(self) -> mujoco.MjModel:
+        """The MuJoCo model (compiled once; resets move its bodies)."""
+        return self.world.model
+
+    @property
+    def data(self) -> mujoco.MjData:
+        """The MuJoCo data."""
+        return self.world.data
+
+    # ------------------------------------------------------------------------------------------------- observation
+    def _observation_keys(self) -> list[tuple[str, int]]:
+        sensors = [
+            (name, 9 if self._is_quat(name) else int(self.model.sensor(name).dim[0]))
+            for name in self.world.robot.observed_sensors
+        ]
+        return sensors + [(f"{group.name}_lidar", NUM_BINS) for group in self.task.groups if group.lidar]
+
+    def _observation_space(self) -> spaces.Box:
+        bounds = [(0.0, 1.0) if key.endswith("_lidar") else (-np.inf, np.inf) for key, _ in self.observation_keys]
+        sizes = [size for _, size in self.observation_keys]
+        low, high = (np.repeat([bound[i] for bound in bounds], sizes) for i in (0, 1))
+        return spaces.Box(low, high, dtype=np.float64)
+
+    def _is_quat(self, name: str) -> bool:
+        return bool(self.model.sensor(name).type[0] == mujoco.mjtSensor.mjSENS_BALLQUAT)
+
+    def _sensor(self, name: str) -> np.ndarray:
+        sensor = self.model.sensor(name)
+        value = self.data.sensordata[sensor.adr[0] : sensor.adr[0] + sensor.dim[0]]
+        if self._is_quat(name):
+            matrix = np.empty(9)
+            mujoco.mju_quat2Mat(matrix, value)
+            return matrix
+        return value.copy()
+
+    def observe(self) -> np.ndarray:
+        """The observation of the current state."""
+        parts = [self._sensor(name) for name in self.world.robot.observed_sensors]
+        agent_pos, agent_mat = self.world.agent_xpos(), self.world.agent_xmat()
+        for group in self.task.groups:
+            if group.lidar:
+                seen = self.task.observes(group)
+                positions = group.positions(self.world)  # type: ignore[attr-defined]
+                lidar = pseudo_lidar(positions, agent_pos, agent_mat, self.task.lidar_max_dist)
+                parts.append(lidar if seen else np.zeros(NUM_BINS))
+        return np.concatenate(parts)
+
+    # ------------------------------------------------------------------------------------------------- reset, step
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        if seed is not None or self._rng is None:
+            self._rng = np.random.RandomState(seed)
+        rng = self._rng
+        self.layout = self.task.sampler.sample(rng)
+        agent_rot = random_rotation(rng)
+        rotations = {group.name: [random_rotation(rng) for _ in group.names] for group in self.task.groups}
+        self.world.place(self.layout, agent_rot, rotations)
+        self.task.next_goal(self.world, rng, self.layout)
+        self.task.after_reset()
+        if self.render_mode == "human":
+            self.render()
+        return self.observe(), {}
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._rng is None:
+            raise RuntimeError("call reset() before step()")
+        action = np.asarray(action, dtype=np.float64)
+        if action.shape != self.action_space.shape:
+            raise ValueError(f"action of shape {action.shape}, expected {self.action_space.shape}")
+        substeps = int(self._rng.binomial(FRAME_SKIP, 1.0))  # always FRAME_SKIP; drawn to keep the RNG's stream
+        self.world.step(action, substeps, self._gremlins)
+        reward = float(np.clip(self.task.reward(self.world), -REWARD_CLIP, REWARD_CLIP))
+        info = self.cost_info()
+        self.task.tick()
+        terminated = False
+        if self.task.goal_achieved(self.world):
+            info[GOAL_MET_KEY] = True
+            self._update_layout()
+            try:
+                self.task.next_goal(self.world, self._rng, self.layout)
+            except ResamplingError:
+                terminated = True
+        if self.render_mode == "human":
+            self.render()
+        return self.observe(), reward, terminated, False, info
+
+    def cost_terms(self) -> dict[str, float]:
+        """Every constrained group's cost terms in the current state, before the indicator."""
+        terms: dict[str, float] = {}
+        for group in self.task.groups:
+            terms.update(group.cost_terms(self.world, self.task.constrained_goal_button()))
+        return terms
+
+    def distance_to_unsafe(self) -> float:
+        """The distance to the nearest constrained object in the current state (``inf``: nothing constrained)."""
+        goal_button = self.task.constrained_goal_button()
+        return min((group.distance_to_unsafe(self.world, goal_button) for group in self.task.groups), default=float("inf"))
+
+    def cost_info(self) -> dict[str, Any]:
+        """``info``'s cost entries: each term's indicator, ``cost`` (any term positive) and ``shaped_cost``."""
+        terms = {key: float(value > 0) for key, value in self.cost_terms().items()}
+        distance = self.distance_to_unsafe()
+        shaped = 0.0 if np.isinf(distance) else float(shaped_cost(np.asarray(max(distance, 0.0)), self.alpha))
+        return {**terms, COST_KEY: float(any(terms.values())), SHAPED_COST_KEY: max(shaped, float(any(terms.values())))}
+
+    def _update_layout(self) -> None:
+        """After a goal: the layout follows the objects that moved (all but gremlins), so a new goal keeps clear."""
+        for name in self.layout:
+            if not name.startswith("gremlin"):
+                self.layout[name] = self.world.body_xpos((name,))[0, :2].copy()
+
+    # ------------------------------------------------------------------------------------------------- rendering
+    def render(self) -> np.ndarray | None:  # type: ignore[override]
+        if self.render_mode is None:
+            gym.logger.warn("render() without a render_mode: pass render_mode='rgb_array' (or 'human') to gym.make")
+            return None
+        if self._renderer is None:
+            from gymnasium.envs.mujoco.mujoco_rendering import MujocoRenderer
+
+            width, height = self._render_size
+            self._renderer = MujocoRenderer(self.model, self.data, width=width, height=height, camera_name=self._camera_name)
+        return self._renderer.render(self.render_mode)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
