@@ -14,12 +14,14 @@ from typing import Any
 import gymnasium as gym
 from stable_baselines3.common.vec_env import VecEnv
 
+from sppo_sb3.envs.navigation import NAVIGATION_TASKS
 from sppo_sb3.envs.point_circle import SafePointCircleEnv, point_distance_to_unsafe, point_is_unsafe
 from sppo_sb3.envs.velocity import VELOCITY_TASKS
 from sppo_sb3.shield.base import ShieldingRule
 from sppo_sb3.shield.learned.dynamics import LearnedDynamicsRule
 from sppo_sb3.shield.learned.latent import LatentModelRule
 from sppo_sb3.shield.tasks.cheetah import HalfCheetahHeightShieldingRule
+from sppo_sb3.shield.tasks.navigation import navigation_shielding_rule
 from sppo_sb3.shield.tasks.point import PointCircleShieldingRule, paper_point_rule
 from sppo_sb3.shield.tasks.velocity import velocity_shielding_rule
 
@@ -66,6 +68,11 @@ SHIELDING_RULES: dict[str, Callable[..., ShieldingRule]] = {
     LATENT_POINT_RULE: latent_point_rule,  # no model: Q̄ rolled on SPPO's own TOLD (SPPO only)
     "SafeHalfCheetahHeight-v1": HalfCheetahHeightShieldingRule,
     **{task.env_id: functools.partial(velocity_shielding_rule, task) for task in VELOCITY_TASKS},
+    **{
+        task.env_id: functools.partial(navigation_shielding_rule, task.robot, task.task, task.level)
+        for task in NAVIGATION_TASKS
+        if task.level > 0  # level 0 constrains nothing
+    },
 }
 #: the env's own parameters each task's rule is built from: attributes of the env passed to the factory as keyword
 #: arguments of the same name (so the rule agrees with the env made, e.g. its shaped-cost band ``alpha`` of eq. 18)
@@ -73,6 +80,7 @@ RULE_ENV_PARAMETERS: dict[str, tuple[str, ...]] = {
     "SafePointCircle-v0": ("params", "alpha"),
     "SafeHalfCheetahHeight-v1": ("alpha",),
     **{task.env_id: ("alpha",) for task in VELOCITY_TASKS},
+    **{task.env_id: ("alpha",) for task in NAVIGATION_TASKS if task.level > 0},
 }
 
 

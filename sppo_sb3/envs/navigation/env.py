@@ -14,6 +14,7 @@ constrained object (see :meth:`ObjectGroup.distance_to_unsafe`).
 
 from __future__ import annotations
 
+import weakref
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -38,6 +39,8 @@ if TYPE_CHECKING:
 REWARD_CLIP = 10.0
 #: ``info`` key of a step that achieved the goal
 GOAL_MET_KEY = "goal_met"
+#: every navigation env alive in this process: a shield finds the simulator state of an observation among them
+LIVE_ENVS: weakref.WeakSet[SafetyNavigationEnv] = weakref.WeakSet()
 
 
 class SafetyNavigationEnv(gym.Env[np.ndarray, np.ndarray], EzPickle):
@@ -64,7 +67,7 @@ class SafetyNavigationEnv(gym.Env[np.ndarray, np.ndarray], EzPickle):
         robot: str = "Point",
         task: str = "Goal",
         level: int = 1,
-        alpha: float = 0.2,
+        alpha: float = 0.1,
         render_mode: str | None = None,
         width: int = 256,
         height: int = 256,
@@ -92,6 +95,22 @@ class SafetyNavigationEnv(gym.Env[np.ndarray, np.ndarray], EzPickle):
         )
         self._renderer: MujocoRenderer | None = None
         self._render_size, self._camera_name = (width, height), camera_name
+        self.last_obs: np.ndarray | None = None
+        LIVE_ENVS.add(self)
+
+    @classmethod
+    def producing(cls, obs: np.ndarray, tolerance: float = 1e-6) -> SafetyNavigationEnv | None:
+        """The live env of this process whose latest observation is ``obs`` (within ``tolerance`` per entry), if any.
+
+        How a shield reads the simulator state behind an observation: the agent sees lidar, the shield the state of
+        the env that produced it (the envs must run in this process: a ``DummyVecEnv``, not a ``SubprocVecEnv``).
+        """
+        obs = np.asarray(obs, dtype=np.float64).ravel()
+        for env in list(LIVE_ENVS):
+            last = env.last_obs
+            if last is not None and last.shape == obs.shape and np.max(np.abs(last - obs)) <= tolerance:
+                return env
+        return None
 
     @property
     def model(self) -> mujoco.MjModel:
@@ -155,7 +174,8 @@ class SafetyNavigationEnv(gym.Env[np.ndarray, np.ndarray], EzPickle):
         self.task.after_reset()
         if self.render_mode == "human":
             self.render()
-        return self.observe(), {}
+        self.last_obs = self.observe()
+        return self.last_obs.copy(), {}
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._rng is None:
@@ -178,7 +198,8 @@ class SafetyNavigationEnv(gym.Env[np.ndarray, np.ndarray], EzPickle):
                 terminated = True
         if self.render_mode == "human":
             self.render()
-        return self.observe(), reward, terminated, False, info
+        self.last_obs = self.observe()
+        return self.last_obs.copy(), reward, terminated, False, info
 
     def cost_terms(self) -> dict[str, float]:
         """Every constrained group's cost terms in the current state, before the indicator."""

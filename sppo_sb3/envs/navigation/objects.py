@@ -90,10 +90,15 @@ class ObjectGroup:
         """The height of the object's body above the floor."""
         return self.size
 
-    def body_xml(self, name: str) -> str:
-        """The object's ``<body>`` at the origin (the world places it at reset)."""
+    def body_xml(self, name: str, mocap: bool = False) -> str:
+        """The object's ``<body>`` at the origin (the world places it at reset).
+
+        :param mocap: a static object becomes a mocap body, its position part of the simulation's state (the
+            shield's model, which serves every layout).
+        """
         joint = f'<freejoint name="{name}"/>' if self.mount == "free" else ""
-        return f'<body name="{name}">{joint}{self.geom_xml(name)}</body>'
+        flag = ' mocap="true"' if mocap and self.mount == "static" else ""
+        return f'<body name="{name}"{flag}>{joint}{self.geom_xml(name)}</body>'
 
     def cost_terms(self, world: World, goal_button: int | None = None) -> dict[str, float]:
         """The cost terms (before the indicator) the group adds on this step; none if it is not constrained.
@@ -286,7 +291,7 @@ class Gremlins(_TouchCost, ObjectGroup):
         """The mocap body's name (``gremlin0mocap``)."""
         return f"{name}mocap"
 
-    def body_xml(self, name: str) -> str:
+    def body_xml(self, name: str, mocap: bool = False) -> str:
         obj = self.object_name(name)
         geom = _contact_geom(obj, "box", (self.size,) * 3, f'density="{self.density}" rgba="0.5 0 1 1"')
         return f'<body name="{obj}"><freejoint name="{obj}"/>{geom}</body>'

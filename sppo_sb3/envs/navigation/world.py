@@ -23,13 +23,25 @@ FRAME_SKIP = 10
 FLOOR_SIZE = (3.5, 3.5, 0.1)
 
 
-def world_xml(robot: Robot, groups: Sequence[ObjectGroup]) -> str:
-    """The MJCF of a task's world: floor, robot, then free, mocap and static bodies, in Safety-Gymnasium's order."""
-    free = [group.body_xml(name) for group in groups if group.mount in ("free", "mocap") for name in group.names]
-    gremlins = [group for group in groups if isinstance(group, Gremlins)]
-    mocaps = [group.mocap_xml(name) for group in gremlins for name in group.names]
-    welds = [group.weld_xml(name) for group in gremlins for name in group.names]
-    static = [group.body_xml(name) for group in groups if group.mount == "static" for name in group.names]
+def world_xml(robot: Robot, groups: Sequence[ObjectGroup], shield_model: bool = False) -> str:
+    """The MJCF of a task's world: floor, robot, then free, mocap and static bodies, in Safety-Gymnasium's order.
+
+    :param shield_model: the model a shield rolls for every layout: every object is a mocap body, its position part
+        of the state; the movable ones (vases, the push box, gremlins) are markers without geoms, as if the robot
+        pushed them away without effort (they weigh 0.2-1.3% of the Point).
+    """
+    if shield_model:
+        static = [group.body_xml(name, mocap=True) for group in groups if group.mount == "static" for name in group.names]
+        markers = [
+            f'<body name="{body}" mocap="true"/>' for group in groups if group.mount != "static" for body in moved(group)
+        ]
+        free, mocaps, welds = markers, [], []
+    else:
+        free = [group.body_xml(name) for group in groups if group.mount in ("free", "mocap") for name in group.names]
+        gremlins = [group for group in groups if isinstance(group, Gremlins)]
+        mocaps = [group.mocap_xml(name) for group in gremlins for name in group.names]
+        welds = [group.weld_xml(name) for group in gremlins for name in group.names]
+        static = [group.body_xml(name) for group in groups if group.mount == "static" for name in group.names]
     return f"""
 <mujoco model="navigation">
   <option timestep="{robot.timestep}"/>
@@ -50,6 +62,11 @@ def world_xml(robot: Robot, groups: Sequence[ObjectGroup]) -> str:
   <sensor>{robot.sensors}</sensor>
   <actuator>{robot.actuators}</actuator>
 </mujoco>"""
+
+
+def moved(group: ObjectGroup) -> list[str]:
+    """The names of the bodies of a movable group (a gremlin's is its free body's, ``gremlin0obj``)."""
+    return [group.object_name(name) for name in group.names] if isinstance(group, Gremlins) else group.names
 
 
 class World:

@@ -1,0 +1,273 @@
+"""The shield of the navigation tasks: :class:`MujocoShieldingRule` on the task's own model, from the simulator state.
+
+The agent senses lidar, which does not say the state; the shield reads it from the env that produced the
+observation (:meth:`SafetyNavigationEnv.producing`), as SAILR's intervention wrapper reads its simulator. The envs
+must therefore live in the calling process (``DummyVecEnv``, ``ShieldWrapper``); an observation no live env produced
+(a ``SubprocVecEnv``'s, a normalised one) raises :class:`~sppo_sb3.shield.ShieldFailure`: nothing is executed on a
+state the shield could not read.
+
+One model serves every layout: the robot, with the Point's slides aligned with the world (the env starts them in the
+robot's start frame), among mocap bodies where the objects are, so that their positions travel in the rolled state (as
+columns after MuJoCo's full physics state, fed to the rollouts as mocap controls). Static objects keep their geoms
+(the robot is blocked by a pillar or a button as in the env); the movable ones (vases, the push box, gremlins) are
+markers where they are now, as if the robot pushed them away without effort: they weigh 0.2-1.3% of the Point, so
+the robot's motion changes by about that much when it pushes one. The constraint, on every rolled env step:
+
+- **hazards** (exact): the robot body's ``(x, y)`` within a hazard's radius, Safety-Gymnasium's cost;
+- **pillars** and **vases** where constrained (conservative): the robot within ``object radius + robot radius`` of
+  one, a superset of touching it (a vase moves only when touched, so its velocity cost is covered too);
+- **walls** (Circle 1 and 2, exact): ``|x|`` (and ``|y|``) beyond 1.125.
+
+What is not covered: gremlins (they circle; the shield does not predict them) and the buttons a Button task forbids.
+On those tasks the rule shields the hazards only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from sppo_sb3.envs.navigation.env import SafetyNavigationEnv
+from sppo_sb3.envs.navigation.objects import Hazards, Pillars, Sigwalls, Vases
+from sppo_sb3.envs.navigation.robots import ROBOTS
+from sppo_sb3.envs.navigation.tasks import TASKS, NavigationTask
+from sppo_sb3.envs.navigation.world import FRAME_SKIP, world_xml
+from sppo_sb3.shield.base import ShieldFailure
+from sppo_sb3.shield.mujoco.model import FULL_STATE, ConstraintSteps, MujocoLayout, StateConstraint
+from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule
+
+
+def navigation_task(robot: str, task: str, level: int) -> NavigationTask:
+    """The task definition of ``Safety<robot><task><level>``."""
+    return TASKS[task](level, ROBOTS[robot])
+
+
+@dataclass(frozen=True)
+class NavigationConstraint(StateConstraint):
+    """The static constraints of a navigation task on the shield model's states (see the module).
+
+    :param hazard_columns: ``(n, 2)`` state columns of each hazard's ``(x, y)``.
+    :param hazard_size: the hazards' radius.
+    :param contact_columns: ``(n, 2)`` state columns of each constrained pillar's or vase's ``(x, y)``.
+    :param contact_reach: ``(n,)`` for each, the distance under which the robot may touch it.
+    :param wall: ``|x|`` beyond this is unsafe (``None``: no walls).
+    :param wall_both_axes: ``|y|`` too.
+    """
+
+    hazard_columns: tuple[tuple[int, int], ...] = ()
+    hazard_size: float = 0.0
+    contact_columns: tuple[tuple[int, int], ...] = ()
+    contact_reach: tuple[float, ...] = ()
+    wall: float | None = None
+    wall_both_axes: bool = False
+
+    @classmethod
+    def of(cls, task: NavigationTask, model: mujoco.MjModel) -> NavigationConstraint:
+        """The constraint of ``task`` on its shield ``model`` (:func:`shield_model`)."""
+        hazards: tuple[tuple[int, int], ...] = ()
+        hazard_size, reach = 0.0, []
+        wall, both = None, False
+        contacts: list[tuple[int, int]] = []
+        for group in task.groups:
+            if not group.constrained:
+                continue
+            if isinstance(group, Hazards):
+                hazards, hazard_size = tuple(mocap_columns(model, name) for name in group.names), group.size
+            elif isinstance(group, Pillars):
+                pillars = [mocap_columns(model, name) for name in group.names]
+                contacts += pillars
+                reach += [group.size + task.robot.radius] * len(pillars)
+            elif isinstance(group, Vases):
+                vases = [mocap_columns(model, name) for name in group.names]
+                contacts += vases
+                reach += [group.size * np.sqrt(2) + task.robot.radius] * len(vases)
+            elif isinstance(group, Sigwalls):
+                wall, both = group.size, group.num == 4
+        return cls(hazards, hazard_size, tuple(contacts), tuple(reach), wall, both)
+
+    @property
+    def empty(self) -> bool:
+        """Whether nothing is constrained (the shield then never acts)."""
+        return not self.hazard_columns and not self.contact_columns and self.wall is None
+
+    def margins(self, states: np.ndarray) -> np.ndarray:
+        """``(..., k)`` the signed distance of each constraint (``<= 0``: violated) in states ``(..., nstate)``."""
+        agent = states[..., 1:3]  # qpos[0:2]: the robot body's (x, y) in the shield model
+        parts = []
+        for columns, reach in ((self.hazard_columns, self.hazard_size), (self.contact_columns, np.array(self.contact_reach))):
+            if columns:
+                centres = states[..., np.array(columns)]  # (..., n, 2)
+                parts.append(np.linalg.norm(centres - agent[..., None, :], axis=-1) - reach)
+        if self.wall is not None:
+            extent = np.abs(agent) if self.wall_both_axes else np.abs(agent[..., :1])
+            parts.append(self.wall - extent)
+        return np.concatenate(parts, axis=-1) if parts else np.full((*states.shape[:-1], 1), np.inf)
+
+    def is_unsafe(self, steps: ConstraintSteps) -> np.ndarray:
+        margins = self.margins(steps.after)
+        hazards = len(self.hazard_columns)  # Safety-Gymnasium: a hazard costs strictly inside its radius
+        inside = np.any(margins[..., :hazards] < 0, axis=-1) if hazards else np.zeros(margins.shape[:-1], dtype=bool)
+        return inside | np.any(margins[..., hazards:] <= 0, axis=-1)
+
+    def distance(self, steps: ConstraintSteps) -> np.ndarray:
+        return np.maximum(np.min(self.margins(steps.after), axis=-1), 0.0)
+
+
+def shield_model(task: NavigationTask) -> mujoco.MjModel:
+    """The task's world with static objects as mocap bodies and without gremlins (see the module)."""
+    return mujoco.MjModel.from_xml_string(world_xml(task.robot, task.groups, shield_model=True))
+
+
+def physics_size(model: mujoco.MjModel) -> int:
+    """Columns of MuJoCo's full physics state; the mocap positions follow them in the shield's states."""
+    return int(mujoco.mj_stateSize(model, FULL_STATE))
+
+
+def mocap_columns(model: mujoco.MjModel, body: str) -> tuple[int, int]:
+    """The state columns of a mocap body's ``(x, y)``."""
+    index = physics_size(model) + 3 * int(model.body_mocapid[model.body(body).id])
+    return index, index + 1
+
+
+@dataclass(frozen=True)
+class NavigationLayout(MujocoLayout):
+    """How the shield sees a navigation task: its state read from the env that produced an observation.
+
+    :param robot: ``"Point"`` or ``"Car"``.
+    :param task: ``"Goal"``, ``"Button"``, ``"Push"`` or ``"Circle"``.
+    :param level: 0, 1 or 2.
+    """
+
+    robot: str = "Point"
+    task: str = "Goal"
+    level: int = 1
+
+    @classmethod
+    def of_task(cls, robot: str, task: str, level: int) -> NavigationLayout:
+        definition = navigation_task(robot, task, level)
+        model = shield_model(definition)
+        env_id = f"sppo_sb3/Safety{robot}{task}{level}-v0"
+        obs_dim = SafetyNavigationEnv(robot, task, level).observation_space.shape[0]  # type: ignore[index]
+        return cls("", FRAME_SKIP, 0, model.nq, model.nv, obs_dim, None, env_id, robot, task, level)
+
+    @property
+    def state_obs_dim(self) -> int:
+        return self.obs_dim
+
+    def build_model(self, constraint: StateConstraint) -> mujoco.MjModel:
+        return shield_model(navigation_task(self.robot, self.task, self.level))
+
+    def at_origin(self, states: np.ndarray) -> np.ndarray:
+        return np.array(states)
+
+    def known_states(self, obs: np.ndarray) -> np.ndarray:
+        return np.ones(len(obs), dtype=bool)
+
+    def states_from_obs(self, model: mujoco.MjModel, obs: np.ndarray) -> np.ndarray:
+        """The shield model's states of the envs that produced ``obs``.
+
+        :raises ShieldFailure: no live env of this process produced one of them.
+        """
+        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
+        states = np.empty((len(obs), physics_size(model) + 3 * model.nmocap))
+        for row, observation in enumerate(obs):
+            env = SafetyNavigationEnv.producing(observation)
+            if env is None:
+                raise ShieldFailure(
+                    f"No navigation env in this process produced this observation, so the shield cannot read its state "
+                    f"({self.env_id}). The navigation shield reads the simulator of the env that made the observation: "
+                    "run the envs in this process (DummyVecEnv, not SubprocVecEnv) and shield raw observations "
+                    "(no VecNormalize before the shield)."
+                )
+            states[row] = shield_state(env, model)
+        return states
+
+    def obs_from_states(self, states: np.ndarray) -> np.ndarray:
+        """The warm starts' keys: ``qpos`` and ``qvel``."""
+        return np.array(states[:, 1 : 1 + self.nq + self.nv])
+
+
+def shield_state(env: SafetyNavigationEnv, model: mujoco.MjModel) -> np.ndarray:
+    """``env``'s simulator state in the shield ``model``'s coordinates: the robot's physics state, then the mocap
+    ``(x, y, z)`` of every object (where the env's bodies are now)."""
+    robot = env.world.robot
+    qpos, qvel = env.data.qpos[: model.nq].copy(), env.data.qvel[: model.nv].copy()  # the robot's joints come first
+    if not robot.free_joint:  # the Point: slides in its start frame → world-aligned slides at the origin
+        agent = env.world.agent_id
+        w, z = env.model.body_quat[agent, 0], env.model.body_quat[agent, 3]
+        heading = 2 * np.arctan2(z, w)
+        rotation = np.array([[np.cos(heading), -np.sin(heading)], [np.sin(heading), np.cos(heading)]])
+        qpos[:2] = env.model.body_pos[agent, :2] + rotation @ qpos[:2]
+        qpos[2] += heading
+        qvel[:2] = rotation @ qvel[:2]
+    mocap = np.zeros((model.nmocap, 3))
+    for body in np.flatnonzero(model.body_mocapid >= 0):
+        mocap[model.body_mocapid[body]] = env.data.body(model.body(body).name).xpos
+    return np.concatenate([[env.data.time], qpos, qvel, mocap.ravel()])
+
+
+class NavigationShieldingRule(MujocoShieldingRule):
+    """:class:`MujocoShieldingRule` for a navigation task, its state read from the env (see the module).
+
+    :param robot: ``"Point"`` or ``"Car"``.
+    :param task: ``"Goal"``, ``"Button"``, ``"Push"`` or ``"Circle"``.
+    :param level: 0, 1 or 2.
+    :param alpha: the shaped cost's band of eq. 18, in metres (the env's ``alpha``).
+    :param n_particles: MPPI particles per solve (half :class:`MujocoShieldingRule`'s: the robots have two controls).
+    :param kwargs: further settings of :class:`MujocoShieldingRule` (``horizon``, ``eta``, ...).
+    """
+
+    def __init__(
+        self,
+        robot: str = "Point",
+        task: str = "Goal",
+        level: int = 1,
+        alpha: float = 0.1,
+        n_particles: int = 32,
+        **kwargs: Any,
+    ) -> None:
+        layout = NavigationLayout.of_task(robot, task, level)
+        definition = navigation_task(robot, task, level)
+        constraint = NavigationConstraint.of(definition, shield_model(definition))
+        if constraint.empty:
+            raise ValueError(f"{layout.env_id} constrains nothing the shield covers: it needs no shield (use shield=None).")
+        super().__init__(layout, constraint, alpha=alpha, n_particles=n_particles, **kwargs)
+        self._physics = physics_size(self.model)
+
+    def _rollout(self, states: np.ndarray, ctrl: np.ndarray, **outputs: np.ndarray) -> None:
+        """Roll the physics part of the states, the mocap columns fed as controls and copied to the outputs."""
+        m, nstep = ctrl.shape[:2]
+        physics, mocap = states[:, : self._physics], states[:, self._physics :]
+        control = np.concatenate([ctrl, np.broadcast_to(mocap[:, None], (m, nstep, mocap.shape[1]))], axis=2)
+        rolled: dict[str, np.ndarray] = {}
+        if "state" in outputs:
+            rolled["state"] = np.empty((m, nstep, self._physics))
+        if "sensordata" in outputs:
+            rolled["sensordata"] = outputs["sensordata"]
+        self._pool.rollout(
+            [self.model] * m,
+            self._datas,
+            np.ascontiguousarray(physics),
+            np.ascontiguousarray(control),
+            control_spec=mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_MOCAP_POS,
+            skip_checks=True,
+            nstep=nstep,
+            initial_warmstart=np.zeros((m, self.model.nv)),
+            **rolled,
+        )
+        if "state" in outputs:
+            outputs["state"][..., : self._physics] = rolled["state"]
+            outputs["state"][..., self._physics :] = mocap[:, None]
+
+    def _state_obs(self, obs: np.ndarray) -> np.ndarray:
+        """The warm starts' keys of ``obs``: the ``qpos`` and ``qvel`` of the states behind them."""
+        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
+        return self.layout.obs_from_states(self.layout.states_from_obs(self.model, obs))
+
+
+def navigation_shielding_rule(robot: str, task: str, level: int, alpha: float = 0.1, **kwargs: Any) -> NavigationShieldingRule:
+    """The registered rule of ``sppo_sb3/Safety<robot><task><level>-v0`` (the registry passes the env's ``alpha``)."""
+    return NavigationShieldingRule(robot, task, level, alpha=alpha, **kwargs)

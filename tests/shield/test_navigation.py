@@ -1,0 +1,124 @@
+"""The navigation tasks' shield: it reads the simulator state, keeps proposals out of static constraints, fails closed."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+import sppo_sb3  # noqa: F401  (registers the tasks)
+from sppo_sb3.envs.navigation import SafetyNavigationEnv
+from sppo_sb3.shield import ShieldFailure, ShieldWrapper
+from sppo_sb3.shield.registry import default_shielding_rule
+from sppo_sb3.shield.tasks.navigation import NavigationConstraint, NavigationShieldingRule, navigation_task, shield_model
+from sppo_sb3.shield.tasks.navigation import shield_state as to_shield_state
+
+
+def toward_nearest(env: SafetyNavigationEnv, prefix: str) -> np.ndarray:
+    """The action that drives the robot straight at the nearest object named ``prefix…`` (an adversarial proposal)."""
+    names = [name for name in env.layout if name.startswith(prefix)]
+    agent = env.world.agent_xpos()[:2]
+    targets = env.world.body_xpos(names)[:, :2]
+    target = targets[np.argmin(np.linalg.norm(targets - agent, axis=1))]
+    ego_x, ego_y = (np.r_[target - agent, 0.0] @ env.world.agent_xmat())[:2]
+    if env.world.robot.name == "Point":  # drives along its x axis; the second control turns it counterclockwise
+        return np.array([1.0, float(np.clip(3 * np.arctan2(ego_y, ego_x), -1, 1))])
+    turn = float(np.clip(3 * np.arctan2(ego_x, -ego_y), -1, 1))  # the Car drives along -y; [1, -1] turns it left
+    return np.clip(np.array([1.0 + turn, 1.0 - turn]), -1, 1)
+
+
+def test_auto_finds_a_rule_for_every_constrained_task_and_none_for_level_zero() -> None:
+    assert isinstance(default_shielding_rule("sppo_sb3/SafetyPointGoal1-v0"), NavigationShieldingRule)
+    assert default_shielding_rule("sppo_sb3/SafetyCarCircle2-v0") is not None
+    assert default_shielding_rule("sppo_sb3/SafetyPointGoal0-v0") is None
+
+
+def test_the_shield_state_predicts_the_env_step() -> None:
+    """The shield model, from the state it reads, steps as the env does (the Point's frame change included)."""
+    env = SafetyNavigationEnv("Point", "Goal", 1)
+    rule = NavigationShieldingRule("Point", "Goal", 1)
+    env.reset(seed=3)
+    action = np.array([[0.7, -0.4]])
+    for _ in range(5):
+        state = to_shield_state(env, rule.model)
+        predicted = rule.next_states(state[None], action)[0]
+        env.step(action[0])
+        actual = to_shield_state(env, rule.model)
+        np.testing.assert_allclose(predicted[1:4], actual[1:4], atol=1e-6)  # x, y, heading
+        np.testing.assert_allclose(predicted[4:7], actual[4:7], atol=1e-4)  # velocities
+
+
+@pytest.mark.parametrize(
+    ("env_id", "prefix"),
+    [
+        ("sppo_sb3/SafetyPointGoal1-v0", "hazard"),
+        ("sppo_sb3/SafetyCarGoal1-v0", "hazard"),
+        ("sppo_sb3/SafetyPointGoal2-v0", "vase"),
+        ("sppo_sb3/SafetyPointPush2-v0", "pillar"),
+    ],
+)
+def test_adversarial_proposals_never_reach_a_static_constraint(env_id: str, prefix: str) -> None:
+    env = gym.make(env_id)
+    shielded = ShieldWrapper(env, default_shielding_rule(env_id, env))
+    inner = env.unwrapped
+    assert isinstance(inner, SafetyNavigationEnv)
+    shielded.reset(seed=1)
+    costs = interventions = 0
+    for _ in range(200):
+        _, _, terminated, truncated, info = shielded.step(toward_nearest(inner, prefix))
+        costs += info["cost"]
+        interventions += info["shield_intervened"]
+        if terminated or truncated:
+            shielded.reset()
+    assert costs == 0
+    assert interventions > 0  # the proposals did head into the constraint
+
+
+def test_random_proposals_stay_safe_on_circle_walls() -> None:
+    env = gym.make("sppo_sb3/SafetyPointCircle2-v0")
+    shielded = ShieldWrapper(env, default_shielding_rule("sppo_sb3/SafetyPointCircle2-v0", env))
+    shielded.reset(seed=0)
+    rng = np.random.default_rng(0)
+    costs = sum(shielded.step(rng.uniform(-1, 1, 2))[4]["cost"] for _ in range(300))
+    assert costs == 0
+
+
+def test_unshielded_adversary_pays_so_the_test_above_can_fail() -> None:
+    env = SafetyNavigationEnv("Point", "Goal", 1)
+    env.reset(seed=1)
+    costs = sum(env.step(toward_nearest(env, "hazard"))[4]["cost"] for _ in range(200))
+    assert costs > 0
+
+
+def test_an_observation_no_live_env_produced_fails_closed() -> None:
+    rule = NavigationShieldingRule("Point", "Goal", 1)
+    env = SafetyNavigationEnv("Point", "Goal", 1)
+    obs, _ = env.reset(seed=0)
+    with pytest.raises(ShieldFailure, match="cannot read its state"):
+        rule.shield(obs[None] + 0.5, np.zeros((1, 2)))  # e.g. a normalised observation
+
+
+def test_a_vec_env_of_several_envs_is_shielded_row_by_row() -> None:
+    venv = DummyVecEnv([lambda: gym.make("sppo_sb3/SafetyPointGoal1-v0") for _ in range(3)])
+    venv.seed(0)
+    obs = venv.reset()
+    rule = default_shielding_rule("sppo_sb3/SafetyPointGoal1-v0", venv)
+    decision = rule.shield(obs, np.zeros((3, 2)))
+    assert decision.actions.shape == (3, 2) and np.isfinite(decision.advantage).all()
+
+
+def test_the_constraint_covers_only_what_the_level_constrains() -> None:
+    def constraint(robot: str, task: str, level: int) -> NavigationConstraint:
+        definition = navigation_task(robot, task, level)
+        return NavigationConstraint.of(definition, shield_model(definition))
+
+    goal1, goal2 = constraint("Point", "Goal", 1), constraint("Point", "Goal", 2)
+    assert len(goal1.hazard_columns) == 8 and not goal1.contact_columns  # Goal1's vase costs nothing
+    assert len(goal2.hazard_columns) == 10 and len(goal2.contact_columns) == 10
+    assert (
+        len(constraint("Point", "Push", 1).contact_columns) == 0 and len(constraint("Point", "Push", 2).contact_columns) == 4
+    )
+    assert constraint("Car", "Circle", 2).wall_both_axes and not constraint("Car", "Circle", 1).wall_both_axes
+    with pytest.raises(ValueError, match="needs no shield"):
+        NavigationShieldingRule("Point", "Goal", 0)
