@@ -4,8 +4,8 @@ Runs go to parallel local processes (``--workers``, default: the number of cores
 tasks on an existing cluster. A run with a ``DONE`` marker is skipped (``--force`` reruns it); a run that failed
 leaves ``FAILED`` and is retried by the next invocation. The algorithms are the package's (configured by
 ``--hyperparams-dir``) and any of rl-zoo3's built-in ones (:func:`~sppo_sb3.experiments.configs.resolve_config`).
-``--plan`` prints the paper-scale grid's (or with ``--velocity`` the velocity grid's) core-hours and what is left of
-it, from the throughput of the runs in ``--out`` (:mod:`~sppo_sb3.experiments.plan`).
+``--plan`` prints the paper-scale grid's (or with ``--velocity`` or ``--navigation`` that grid's) core-hours and what is
+left of it, from the throughput of the runs in ``--out`` (:mod:`~sppo_sb3.experiments.plan`).
 """
 
 from __future__ import annotations
@@ -64,12 +64,14 @@ def parse_args(argv: Sequence[str] | None = None, default_hyperparams_dir: Path 
         f'--fig7 dmc: on the paper\'s dm_control tasks {" ".join(grid.FIG7_DMC)} (pip install "sppo_sb3[dmc]")'
     )
     parser.add_argument("--fig7", nargs="?", const="mujoco", default=None, choices=tuple(grid.FIG7_SETS), help=fig7)
-    velocity = (
-        f"Safety-Gymnasium's velocity tasks: {' '.join(grid.VELOCITY_ALGOS)} on {' '.join(grid.VELOCITY_TASKS)},\n"
-        f"hyperparams/{grid.VELOCITY_HYPERPARAMS}/ ({grid.VELOCITY_STEPS:.0e} env steps), each final policy deployed for "
-        f"{grid.VELOCITY_DEPLOYMENT_EPISODES} episodes"
-    )
-    parser.add_argument("--velocity", action="store_true", help=velocity)
+    for suite in grid.SUITES.values():
+        parser.add_argument(
+            f"--{suite.name}",
+            action="store_true",
+            help=f"Safety-Gymnasium's {suite.name} tasks: {' '.join(suite.algos)} on {' '.join(suite.tasks)},\n"
+            f"hyperparams/{suite.hyperparams}/ ({suite.steps:.0e} env steps), each final policy deployed for "
+            f"{suite.deployment_episodes} episodes",
+        )
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel local runs (default: cores)")
     parser.add_argument("--ray-address", default=None, help="run as Ray tasks on this cluster (auto, ray://host:port)")
     parser.add_argument("--ray-cpus-per-run", type=float, default=1.0, help="CPUs Ray reserves per run (default: 1)")
@@ -84,28 +86,30 @@ def parse_args(argv: Sequence[str] | None = None, default_hyperparams_dir: Path 
     parser.add_argument(
         "--plan",
         action="store_true",
-        help="print the paper-scale grid's core-hours (with --velocity: the velocity grid's), measured on the\n"
+        help="print the paper-scale grid's core-hours (with --velocity or --navigation: that grid's), measured on the\n"
         "finished runs in --out, and the wall clock of the runs left on --workers cores; then exit",
     )
     args = parser.parse_args(argv)
-    if args.velocity and args.fig7:
-        parser.error("--velocity and --fig7 are two grids: give one")
+    suites = [grid.SUITES[name] for name in grid.SUITES if getattr(args, name)]
+    if len(suites) + bool(args.fig7) > 1:
+        parser.error(f"--{', --'.join(grid.SUITES)} and --fig7 are separate grids: give one")
+    args.suite = suites[0] if suites else None
     if args.hyperparams_dir is None:
-        subfolder = grid.VELOCITY_HYPERPARAMS if args.velocity else grid.FIG7_SETS[args.fig7 or "mujoco"][1]
+        subfolder = args.suite.hyperparams if args.suite else grid.FIG7_SETS[args.fig7 or "mujoco"][1]
         args.hyperparams_dir = default_hyperparams_dir / subfolder
-    if args.velocity:  # before the user's own --zoo-args, which win
-        args.zoo_args = f"--deployment-episodes {grid.VELOCITY_DEPLOYMENT_EPISODES} {args.zoo_args}".strip()
+    if args.suite:  # before the user's own --zoo-args, which win
+        args.zoo_args = f"--deployment-episodes {args.suite.deployment_episodes} {args.zoo_args}".strip()
     return args
 
 
 def grid_axes(args: argparse.Namespace) -> tuple[list[str], list[str], list[int]]:
-    """The algorithms, tasks and seeds the options ask for (``--quick``, ``--fig7`` and ``--velocity`` presets applied).
+    """The algorithms, tasks and seeds the options ask for (``--quick``, ``--fig7`` and the suites' presets applied).
 
     :param args: :func:`parse_args`'s result.
     :raises SystemExit: an option out of range.
     """
-    if args.velocity:
-        default_algos, default_tasks = grid.VELOCITY_ALGOS, grid.VELOCITY_TASKS
+    if args.suite:
+        default_algos, default_tasks = args.suite.algos, args.suite.tasks
     elif args.fig7:
         default_algos, default_tasks = grid.FIG7_ALGOS, grid.FIG7_SETS[args.fig7][0]
     else:
@@ -161,8 +165,8 @@ def run_grid(todo: Sequence[RunSpec], args: argparse.Namespace) -> list[RunSpec]
 
 def print_plan(args: argparse.Namespace) -> int:
     """Print the plan (:func:`~sppo_sb3.experiments.plan.plan_markdown`) of the paper-scale grid, or with
-    ``--velocity`` of the velocity grid the options name (its algorithms, tasks, seeds; ``--steps`` or its budget), with
-    the runs left in ``--out``; returns the exit status.
+    ``--velocity`` / ``--navigation`` of the suite's grid the options name (its algorithms, tasks, seeds; ``--steps``
+    or its budget), with the runs left in ``--out``; returns the exit status.
 
     :param args: :func:`parse_args`'s result: ``--out``, whose finished runs measure the throughput, and ``--workers``,
         the cores of the wall clock.
@@ -173,8 +177,8 @@ def print_plan(args: argparse.Namespace) -> int:
         print(f"benchmark --plan: no finished runs under {args.out} to measure the throughput on", file=sys.stderr)
         return 1
     throughput = plan.measured_throughput(summaries)
-    if args.velocity:
-        steps = grid_steps(args, tasks)[0] or grid.VELOCITY_STEPS
+    if args.suite:
+        steps = grid_steps(args, tasks)[0] or args.suite.steps
         grid_plan = plan.grid_plan(throughput, dict.fromkeys(tasks, seeds), algos, steps, finished=summaries)
     else:
         steps = plan.PAPER_STEPS

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 from sppo_sb3.algorithms import PAPER_ALGORITHMS
@@ -24,15 +25,44 @@ FIG7_TASKS: tuple[str, ...] = ("HalfCheetah-v5", "Hopper-v5", "Walker2d-v5")
 FIG7_DMC: tuple[str, ...] = tuple(dmc_id(task) for task in FIG7_DMC_TASKS)
 #: the task sets of ``--fig7 [SET]`` and the hyperparameter subfolder each one reads ("": the folder itself)
 FIG7_SETS: dict[str, tuple[tuple[str, ...], str]] = {"mujoco": (FIG7_TASKS, ""), "dmc": (FIG7_DMC, "dmc")}
-#: ``--velocity``: Safety-Gymnasium's velocity tasks against OmniSafe's published tables: SPPO, the constrained
-#: baselines (OmniSafe's strongest there, SACLag, and PDO and CPO) and SB3's SAC as the unconstrained reference
-VELOCITY_ALGOS: tuple[str, ...] = ("sppo", "saclag", "pdo", "cpo", "sac")
-VELOCITY_TASKS: tuple[str, ...] = tuple(task.env_id for task in (HALF_CHEETAH, HOPPER, WALKER2D, ANT))
-#: its hyperparameter subfolder, the budget of its runs (their ``n_timesteps``) and the episodes of each final
-#: deployment, as OmniSafe evaluates
-VELOCITY_HYPERPARAMS = "velocity"
-VELOCITY_STEPS = 100_000
-VELOCITY_DEPLOYMENT_EPISODES = 10
+
+
+@dataclass(frozen=True)
+class Suite:
+    """A benchmark preset (``--velocity``, ``--navigation``): Safety-Gymnasium's tasks against OmniSafe's tables.
+
+    :param name: the option's name.
+    :param algos: SPPO, the constrained baselines (OmniSafe's strongest off-policy one, SACLag, and PDO and CPO) and
+        SB3's SAC as the unconstrained reference.
+    :param tasks: the suite's tasks.
+    :param hyperparams: its hyperparameter subfolder.
+    :param steps: the budget of its runs (their ``n_timesteps``).
+    :param deployment_episodes: the episodes of each final deployment, as OmniSafe evaluates.
+    """
+
+    name: str
+    algos: tuple[str, ...]
+    tasks: tuple[str, ...]
+    hyperparams: str
+    steps: int = 100_000
+    deployment_episodes: int = 10
+
+
+#: ``--velocity``: Safety-Gymnasium's velocity tasks
+VELOCITY = Suite(
+    "velocity",
+    ("sppo", "saclag", "pdo", "cpo", "sac"),
+    tuple(task.env_id for task in (HALF_CHEETAH, HOPPER, WALKER2D, ANT)),
+    "velocity",
+)
+#: ``--navigation``: Safety-Gymnasium's navigation tasks, those of OmniSafe's model-based and off-policy tables
+NAVIGATION = Suite(
+    "navigation",
+    ("sppo", "saclag", "pdo", "cpo", "sac"),
+    ("sppo_sb3/SafetyPointGoal1-v0", "sppo_sb3/SafetyCarGoal1-v0", "sppo_sb3/SafetyPointButton1-v0"),
+    "navigation",
+)
+SUITES: dict[str, Suite] = {suite.name: suite for suite in (VELOCITY, NAVIGATION)}
 #: ``--quick``: a few minutes on a laptop (on-policy algorithms still collect one full rollout of ``n_steps``)
 QUICK_STEPS: dict[str, int] = {"SafePointCircle-v0": 2048, "SafeHalfCheetahHeight-v1": 256}
 QUICK_DEFAULT_STEPS = 2048

@@ -189,7 +189,7 @@ def test_velocity_preset_runs_its_grid_from_its_own_folder(capsys: pytest.Captur
     assert args.hyperparams_dir == configs.REPO_HYPERPARAMS_DIR / "velocity"
     assert args.zoo_args == "--deployment-episodes 10 --deployment-episodes 3"
     algos, tasks, seeds = benchmark.grid_axes(args)
-    assert (tuple(algos), tuple(tasks), seeds) == (grid.VELOCITY_ALGOS, grid.VELOCITY_TASKS, [0, 1, 2])
+    assert (tuple(algos), tuple(tasks), seeds) == (grid.VELOCITY.algos, grid.VELOCITY.tasks, [0, 1, 2])
     assert len(tasks) == 4 and all(task.startswith("sppo_sb3/Safety") for task in tasks)
     specs = grid.build_grid(algos, tasks, seeds[:1], Path("out"), args.hyperparams_dir)
     for spec in specs:  # every pair has an entry in the folder, at the grid's budget
@@ -200,8 +200,21 @@ def test_velocity_preset_runs_its_grid_from_its_own_folder(capsys: pytest.Captur
     assert {spec.algo for spec in specs if "shield" in yaml.safe_load(spec.config_text or "")[spec.task]} == {"sppo"}
     with pytest.raises(SystemExit):
         benchmark.parse_args(["--velocity", "--fig7"])
-    assert "two grids" in capsys.readouterr().err
+    assert "separate grids" in capsys.readouterr().err
 
+
+
+def test_navigation_preset_runs_its_grid_from_its_own_folder() -> None:
+    """``--navigation``: the same algorithms on PointGoal1, CarGoal1 and PointButton1, from hyperparams/navigation,
+    every pair configured at the suite's budget, SPPO shielded by the task's rule."""
+    args = benchmark.parse_args(["--navigation"])
+    assert args.hyperparams_dir == configs.REPO_HYPERPARAMS_DIR / "navigation"
+    algos, tasks, seeds = benchmark.grid_axes(args)
+    assert (tuple(algos), tuple(tasks), seeds) == (grid.NAVIGATION.algos, grid.NAVIGATION.tasks, [0, 1, 2])
+    for spec in grid.build_grid(algos, tasks, seeds[:1], Path("out"), args.hyperparams_dir):
+        entry = yaml.safe_load(spec.config_text or "")[spec.task]
+        assert entry["n_timesteps"] == 1e5, spec.label
+        assert ("shield" in entry) == (spec.algo == "sppo"), spec.label
 
 def test_scripts_are_thin_command_lines_over_the_module(tmp_path: Path) -> None:
     """``python scripts/benchmark.py`` keeps its flags, presets and output; its default config folder is the repo's."""

@@ -102,17 +102,17 @@ def test_benchmark_plan_prints_the_table_and_runs_nothing(results: Path, capsys:
 
 def test_velocity_plan_counts_the_runs_left(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``--plan --velocity`` costs the velocity grid at its budget, and a finished run of that budget is not left."""
-    cheetah, hopper = grid.VELOCITY_TASKS[:2]
-    _write_run(tmp_path, hopper, "sppo", 0, grid.VELOCITY_STEPS, 2000.0, 60.0)  # a grid run: done
+    cheetah, hopper = grid.VELOCITY.tasks[:2]
+    _write_run(tmp_path, hopper, "sppo", 0, grid.VELOCITY.steps, 2000.0, 60.0)  # a grid run: done
     _write_run(tmp_path, cheetah, "sppo", 0, 5000, 100.0, 60.0)  # a shorter run: measures the rate, is not done
-    _write_run(tmp_path, cheetah, "pdo", 0, grid.VELOCITY_STEPS + 352, 300.0, 400.0)  # its last full rollout: done
+    _write_run(tmp_path, cheetah, "pdo", 0, grid.VELOCITY.steps + 352, 300.0, 400.0)  # its last full rollout: done
     argv = ["--plan", "--velocity", "--algos", "sppo", "pdo", "--out", str(tmp_path), "--workers", "2"]
     assert benchmark.main(argv) == 0
     text = capsys.readouterr().out
-    assert f"{grid.VELOCITY_STEPS:,} env steps per run" in text
+    assert f"{grid.VELOCITY.steps:,} env steps per run" in text
     summaries = plan.load_summaries(tmp_path)
-    seeds = dict.fromkeys(grid.VELOCITY_TASKS, range(grid.DEFAULT_SEEDS))
-    expected = plan.grid_plan(plan.measured_throughput(summaries), seeds, ["sppo", "pdo"], grid.VELOCITY_STEPS, summaries)
+    seeds = dict.fromkeys(grid.VELOCITY.tasks, range(grid.DEFAULT_SEEDS))
+    expected = plan.grid_plan(plan.measured_throughput(summaries), seeds, ["sppo", "pdo"], grid.VELOCITY.steps, summaries)
     left = expected.set_index(["task", "algo"])["left"]
     assert (left[(hopper, "sppo")], left[(cheetah, "sppo")], left[(cheetah, "pdo")]) == (2, 3, 2)
     assert (left.drop([(hopper, "sppo"), (cheetah, "sppo"), (cheetah, "pdo")]) == grid.DEFAULT_SEEDS).all()
@@ -124,8 +124,8 @@ def test_velocity_plan_counts_the_runs_left(tmp_path: Path, capsys: pytest.Captu
 
 def test_velocity_plan_counts_only_the_seeds_asked_for(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """``--first-seed 1 --seeds 1``: seed 0's finished run measures the rate but does not stand in for seed 1."""
-    hopper = grid.VELOCITY_TASKS[1]
-    _write_run(tmp_path, hopper, "sppo", 0, grid.VELOCITY_STEPS, 2000.0, 60.0)
+    hopper = grid.VELOCITY.tasks[1]
+    _write_run(tmp_path, hopper, "sppo", 0, grid.VELOCITY.steps, 2000.0, 60.0)
     argv = ["--plan", "--velocity", "--algos", "sppo", "--tasks", hopper, "--out", str(tmp_path), "--workers", "1"]
     assert benchmark.main([*argv, "--first-seed", "1", "--seeds", "1"]) == 0
     assert "| 1 runs |" in capsys.readouterr().out
@@ -134,6 +134,6 @@ def test_velocity_plan_counts_only_the_seeds_asked_for(tmp_path: Path, capsys: p
 
 
 def test_the_velocity_budget_is_the_yml_files() -> None:
-    for path in (REPO / "hyperparams" / grid.VELOCITY_HYPERPARAMS).glob("*.yml"):
+    for path in (REPO / "hyperparams" / grid.VELOCITY.hyperparams).glob("*.yml"):
         for task, entry in yaml.safe_load(path.read_text()).items():
-            assert float(entry["n_timesteps"]) == grid.VELOCITY_STEPS, (path.name, task)
+            assert float(entry["n_timesteps"]) == grid.VELOCITY.steps, (path.name, task)
