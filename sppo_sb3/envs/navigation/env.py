@@ -15,6 +15,7 @@ constrained object (see :meth:`ObjectGroup.distance_to_unsafe`).
 from __future__ import annotations
 
 import weakref
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -41,6 +42,31 @@ REWARD_CLIP = 10.0
 GOAL_MET_KEY = "goal_met"
 #: every navigation env alive in this process: a shield finds the simulator state of an observation among them
 LIVE_ENVS: weakref.WeakSet[SafetyNavigationEnv] = weakref.WeakSet()
+
+
+@dataclass
+class NavigationState:
+    """Everything a step of a navigation env depends on, within an episode (its layout of static objects aside).
+
+    :param time: the simulation's time.
+    :param qpos: MuJoCo's positions.
+    :param qvel: MuJoCo's velocities.
+    :param qacc_warmstart: the constraint solver's warm start (a step from the same state with another warm start
+        agrees up to the solver's tolerance).
+    :param mocap_pos: the mocap bodies' positions (gremlins).
+    :param mocap_quat: the mocap bodies' orientations.
+    :param goal_xy: where the goal is.
+    :param task: the task's own state (:meth:`NavigationTask.state`: distances of the last step, the buttons' timer).
+    """
+
+    time: float
+    qpos: np.ndarray
+    qvel: np.ndarray
+    qacc_warmstart: np.ndarray
+    mocap_pos: np.ndarray
+    mocap_quat: np.ndarray
+    goal_xy: np.ndarray
+    task: dict[str, float] = field(default_factory=dict)
 
 
 class SafetyNavigationEnv(gym.Env[np.ndarray, np.ndarray], EzPickle):
@@ -225,6 +251,40 @@ class SafetyNavigationEnv(gym.Env[np.ndarray, np.ndarray], EzPickle):
         for name in self.layout:
             if not name.startswith("gremlin"):
                 self.layout[name] = self.world.body_xpos((name,))[0, :2].copy()
+
+    # ------------------------------------------------------------------------------------------------- state
+    def get_state(self) -> NavigationState:
+        """A copy of the state the next step depends on (see :class:`NavigationState`)."""
+        data = self.data
+        return NavigationState(
+            float(data.time),
+            data.qpos.copy(),
+            data.qvel.copy(),
+            data.qacc_warmstart.copy(),
+            data.mocap_pos.copy(),
+            data.mocap_quat.copy(),
+            self.world.body_xpos(("goal",))[0, :2].copy() if self.task.has("goal") else np.zeros(2),
+            self.task.state(),
+        )
+
+    def set_rng_state(self, keys: np.ndarray, position: int) -> None:
+        """Set the layout's random stream (a Mersenne Twister, as Safety-Gymnasium's ``RandomState``) to a recorded
+        state: its 624 keys and position."""
+        if self._rng is None:
+            self._rng = np.random.RandomState()
+        self._rng.set_state(("MT19937", np.asarray(keys, dtype=np.uint32), int(position), 0, 0.0))
+
+    def set_state(self, state: NavigationState) -> None:
+        """Restore a state of the current episode (the static objects stay where this episode's layout put them)."""
+        data = self.data
+        data.time = state.time
+        data.qpos[:], data.qvel[:], data.qacc_warmstart[:] = state.qpos, state.qvel, state.qacc_warmstart
+        data.mocap_pos[:], data.mocap_quat[:] = state.mocap_pos, state.mocap_quat
+        if self.task.has("goal"):
+            self.model.body_pos[self.model.body("goal").id, :2] = state.goal_xy
+        self.task.set_state(state.task)
+        mujoco.mj_forward(self.model, self.data)
+        self.last_obs = self.observe()
 
     # ------------------------------------------------------------------------------------------------- rendering
     def render(self) -> np.ndarray | None:  # type: ignore[override]
