@@ -113,6 +113,7 @@ class SafetyNavigationEnv(gym.Env[np.ndarray, np.ndarray], EzPickle):
         self._gremlins = next((group for group in self.task.groups if isinstance(group, Gremlins)), None)
         self._rng: np.random.RandomState | None = None
         self.layout: dict[str, np.ndarray] = {}
+        self._observation_layout()
         self.observation_keys = self._observation_keys()
         self.observation_space = self._observation_space()
         ctrlrange = self.world.model.actuator_ctrlrange
@@ -165,26 +166,39 @@ class SafetyNavigationEnv(gym.Env[np.ndarray, np.ndarray], EzPickle):
     def _is_quat(self, name: str) -> bool:
         return bool(self.model.sensor(name).type[0] == mujoco.mjtSensor.mjSENS_BALLQUAT)
 
-    def _sensor(self, name: str) -> np.ndarray:
-        sensor = self.model.sensor(name)
-        value = self.data.sensordata[sensor.adr[0] : sensor.adr[0] + sensor.dim[0]]
-        if self._is_quat(name):
-            matrix = np.empty(9)
-            mujoco.mju_quat2Mat(matrix, value)
-            return matrix
-        return value.copy()
+    def _observation_layout(self) -> None:
+        """Where each sensor reads in ``sensordata``, and which bodies each lidar sees (cached for :meth:`observe`)."""
+        self._sensors = [
+            (int(self.model.sensor(name).adr[0]), int(self.model.sensor(name).dim[0]), self._is_quat(name))
+            for name in self.world.robot.observed_sensors
+        ]
+        self._lidar_groups = [group for group in self.task.groups if group.lidar]
+        self._lidar_bodies = np.array([self.model.body(body).id for group in self._lidar_groups for body in group.bodies])
+        self._lidar_kinds = np.repeat(np.arange(len(self._lidar_groups)), [len(group.bodies) for group in self._lidar_groups])
 
     def observe(self) -> np.ndarray:
         """The observation of the current state."""
-        parts = [self._sensor(name) for name in self.world.robot.observed_sensors]
-        agent_pos, agent_mat = self.world.agent_xpos(), self.world.agent_xmat()
-        for group in self.task.groups:
-            if group.lidar:
-                seen = self.task.observes(group)
-                positions = group.positions(self.world)  # type: ignore[attr-defined]
-                lidar = pseudo_lidar(positions, agent_pos, agent_mat, self.task.lidar_max_dist)
-                parts.append(lidar if seen else np.zeros(NUM_BINS))
-        return np.concatenate(parts)
+        sensordata = self.data.sensordata
+        parts = []
+        for adr, dim, is_quat in self._sensors:
+            if is_quat:
+                matrix = np.empty(9)
+                mujoco.mju_quat2Mat(matrix, sensordata[adr : adr + dim])
+                parts.append(matrix)
+            else:
+                parts.append(sensordata[adr : adr + dim])
+        lidar = pseudo_lidar(
+            self.data.xpos[self._lidar_bodies],
+            self.world.agent_xpos(),
+            self.world.agent_xmat(),
+            self.task.lidar_max_dist,
+            kinds=self._lidar_kinds,
+            num_kinds=len(self._lidar_groups),
+        )
+        for row, group in enumerate(self._lidar_groups):
+            if not self.task.observes(group):
+                lidar[row] = 0.0
+        return np.concatenate([*parts, lidar.ravel()])
 
     # ------------------------------------------------------------------------------------------------- reset, step
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import ClassVar, Protocol
 
 import numpy as np
@@ -77,10 +78,19 @@ class ObjectGroup:
     #: whether the pseudo-lidar sees it
     lidar: ClassVar[bool] = True
 
-    @property
+    @cached_property
     def names(self) -> list[str]:
         """The layout (and body) names of the group's objects."""
         return [self.name] if self.num is None else [f"{self.name[:-1]}{i}" for i in range(self.num)]
+
+    @cached_property
+    def bodies(self) -> list[str]:
+        """The bodies whose positions are the objects' (what the lidar sees, what costs measure)."""
+        return self.names
+
+    def positions(self, world: World) -> np.ndarray:
+        """The objects' positions, ``(n, 3)``."""
+        return world.body_xpos(self.bodies)
 
     def geom_xml(self, name: str) -> str:
         """The object's ``<geom>`` (or geoms), in its body's frame."""
@@ -151,9 +161,6 @@ class Goal(ObjectGroup):
     def height(self) -> float:
         return self.size / 2 + 1e-2
 
-    def positions(self, world: World) -> np.ndarray:
-        return world.body_xpos(self.names)
-
 
 @dataclass(frozen=True)
 class Hazards(ObjectGroup):
@@ -168,9 +175,6 @@ class Hazards(ObjectGroup):
 
     def height(self) -> float:
         return 2e-2
-
-    def positions(self, world: World) -> np.ndarray:
-        return world.body_xpos(self.names)
 
     def cost_terms(self, world: World, goal_button: int | None = None) -> dict[str, float]:
         if not self.constrained:
@@ -201,9 +205,6 @@ class Pillars(_TouchCost, ObjectGroup):
     def height(self) -> float:
         return self.half_height
 
-    def positions(self, world: World) -> np.ndarray:
-        return world.body_xpos(self.names)
-
 
 @dataclass(frozen=True)
 class Buttons(_TouchCost, ObjectGroup):
@@ -219,9 +220,6 @@ class Buttons(_TouchCost, ObjectGroup):
 
     def geom_xml(self, name: str) -> str:
         return _contact_geom(name, "sphere", (self.size,) * 3, 'rgba="1 0.5 0 1"')
-
-    def positions(self, world: World) -> np.ndarray:
-        return world.body_xpos(self.names)
 
     def cost_terms(self, world: World, goal_button: int | None = None) -> dict[str, float]:
         if not self.constrained or goal_button is None:
@@ -258,9 +256,6 @@ class Vases(_TouchCost, ObjectGroup):
 
     def height(self) -> float:
         return self.size - self.sink
-
-    def positions(self, world: World) -> np.ndarray:
-        return world.body_xpos(self.names)
 
     def cost_terms(self, world: World, goal_button: int | None = None) -> dict[str, float]:
         if not self.constrained:
@@ -306,12 +301,13 @@ class Gremlins(_TouchCost, ObjectGroup):
         mocap, obj = self.mocap_name(name), self.object_name(name)
         return f'<weld name="{mocap}" body1="{mocap}" body2="{obj}" solref="0.02 1.5"/>'
 
+    @cached_property
+    def bodies(self) -> list[str]:
+        return [self.object_name(name) for name in self.names]
+
     def mocap_target(self, time: float) -> np.ndarray:
         """Where every gremlin's mocap body is at ``time``: on the circle of radius ``travel``, at height ``size``."""
         return np.array([np.sin(time) * self.travel, np.cos(time) * self.travel, self.size])
-
-    def positions(self, world: World) -> np.ndarray:
-        return world.body_xpos([self.object_name(name) for name in self.names])
 
     @property
     def contact_prefix(self) -> str:
@@ -336,9 +332,6 @@ class PushBox(ObjectGroup):
             for i, (x, y) in enumerate(((1, 1), (-1, 1), (1, -1), (-1, -1)))
         )
         return _contact_geom(name, "box", (dim,) * 3, extra) + columns
-
-    def positions(self, world: World) -> np.ndarray:
-        return world.body_xpos(self.names)
 
 
 @dataclass(frozen=True)
@@ -392,5 +385,6 @@ class CircleZone(ObjectGroup):
     def height(self) -> float:
         return 1e-2
 
-    def positions(self, world: World) -> np.ndarray:
-        return np.zeros((1, 3))
+    @cached_property
+    def bodies(self) -> list[str]:
+        return ["world"]  # Safety-Gymnasium's lidar sees the circle at the origin

@@ -170,7 +170,7 @@ class World:
     def agent_planar_distances(self, positions: np.ndarray) -> np.ndarray:
         """The xy distances from the robot body to ``positions`` (``(n, 2)`` or ``(n, 3)``)."""
         delta = np.asarray(positions)[:, :2] - self.agent_xpos()[:2]
-        return np.sqrt(np.sum(np.square(delta), axis=1))
+        return np.sqrt(delta[:, 0] ** 2 + delta[:, 1] ** 2)  # Safety-Gymnasium's sum of the two squares, in its order
 
     def body_linear_velocities(self, names: Sequence[str]) -> np.ndarray:
         """The linear velocities of the named bodies' origins in the world frame (their translational Jacobians

@@ -40,7 +40,7 @@ class GoalTask(NavigationTask):
         distance = goal_distance(world)
         reward = (self.last_dist_goal - distance) * self.reward_distance
         self.last_dist_goal = distance
-        return reward + self.reward_goal * self.goal_achieved(world)
+        return reward + self.reward_goal * (distance <= self.group("goal").size)
 
     def goal_achieved(self, world: World) -> bool:
         return goal_distance(world) <= self.group("goal").size
