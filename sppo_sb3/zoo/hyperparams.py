@@ -22,9 +22,9 @@ _ZOO_KWARGS_KEYS = frozenset({"policy_kwargs", "replay_buffer_kwargs", "monitor_
 #: yml keys that configure rl-zoo3's run, not the algorithm's constructor
 _ZOO_ONLY_KEYS = frozenset({"n_timesteps", "n_envs", "normalize", "env_wrapper", "frame_stack", "callback", "vec_env_wrapper"})
 #: the folders of :data:`~sppo_sb3.algorithms.HYPERPARAMS_DIR` that hold the default hyperparameters of a task family
-#: whose tasks the top-level ``ALGO.yml`` does not have (Safety-Gymnasium's velocity tasks, the dm_control tasks), in
-#: the order :func:`default_config` reads them
-FAMILY_FOLDERS: tuple[str, ...] = ("velocity", "dmc")
+#: whose tasks the top-level ``ALGO.yml`` does not have (Safety-Gymnasium's velocity and navigation tasks, the
+#: dm_control tasks), in the order :func:`default_config` reads them
+FAMILY_FOLDERS: tuple[str, ...] = ("velocity", "navigation", "dmc")
 
 
 def _entries(path: Path) -> dict[str, Any]:
