@@ -32,6 +32,7 @@ from sppo_sb3.sppo.compile import CompiledFunction, CompileMode, check_compile_m
 from sppo_sb3.sppo.optim import init_optimizer_state, supports_tensor_step
 from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
 from sppo_sb3.sppo.policies import TOLDPolicy
+from sppo_sb3.sppo.sizes import SizesName, named_sizes
 from sppo_sb3.sppo.time_scale import PAPER_GAMMA, episode_discount, episode_length_of
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, topo_update
 
@@ -60,7 +61,8 @@ def check_spaces(observation_space: spaces.Space, action_space: spaces.Space) ->
 class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
     """Shielded Planning guided Policy Optimization (Wang, Qin & Kan).
 
-    Defaults are TD-MPC's (Hansen et al. 2022). ``planner_kwargs`` are fields of :class:`MPPIConfig`, ``topo_kwargs`` fields of
+    Defaults are TD-MPC's (Hansen et al. 2022) but for the sizes, which default to ones a CPU runs (``sizes="cpu"``;
+    TD-MPC's are ``sizes="tdmpc"``). ``planner_kwargs`` are fields of :class:`MPPIConfig`, ``topo_kwargs`` fields of
     :class:`TOPOConfig`; ``policy_kwargs`` set the TOLD sizes (``latent_dim``, ``encoder_dim``, ``hidden_dim``).
 
     :param policy: ``"TOLDPolicy"`` (alias ``"MlpPolicy"``) or a policy class.
@@ -68,7 +70,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
     :param learning_rate: Adam learning rate of the model and of the policy.
     :param buffer_size: replay buffer size (``B`` and ``B̃`` share it).
     :param learning_starts: warm-up steps with random (shielded) actions before planning and training.
-    :param batch_size: sequences per TOPO update.
+    :param batch_size: sequences per TOPO update (``None``: the ``sizes``').
     :param tau: EMA coefficient of the target network (Alg. 3 line 13).
     :param gamma: discount of eqs. 10 and 16: a number (the paper's and TD-MPC's 0.99), or ``"auto"``: from the task's
         episode length, TD-MPC2's rule (:func:`~sppo_sb3.sppo.time_scale.episode_discount`: 0.99 for 500 steps, 0.995
@@ -76,7 +78,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         :attr:`gamma`.
     :param train_freq: update the model every ``train_freq`` steps.
     :param gradient_steps: TOPO updates per rollout.
-    :param horizon: length ``H`` of the sequences TOPO trains on.
+    :param horizon: length ``H`` of the sequences TOPO trains on, and of the plans (``None``: the ``sizes``').
     :param target_update_interval: update the EMA target every this many TOPO updates.
     :param shield: a :class:`ShieldingRule`, ``"auto"`` (the task's registered rule; where there is none, SPPO warns
         and runs unshielded), another registered rule's name (e.g. ``"SafePointCircle-v0:paper"``, the paper's Point
@@ -110,6 +112,11 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         actions almost never take: these steps put them in ``B``. Not in the paper (its Alg. 1 warms up uniformly).
     :param planner_kwargs: :class:`MPPIConfig` overrides.
     :param topo_kwargs: :class:`TOPOConfig` overrides.
+    :param sizes: the TOLD, planner and batch sizes, by name (:mod:`~sppo_sb3.sppo.sizes`): ``"cpu"`` (default:
+        TOLD 32 / 64 / 128, MPPI 64 samples × 3 iterations, batches of 128 sequences of 3 steps; about 2 ms per
+        planned action on a CPU core) or ``"tdmpc"`` (TD-MPC's, for a GPU: 50 / 256 / 512, 512 × 6, 512 sequences of
+        5 steps). ``policy_kwargs``, ``planner_kwargs``, ``batch_size`` and ``horizon`` override them. A run logs the
+        sizes it uses (``verbose >= 1``).
     :param plan_at_predict: ``predict`` plans with MPPI (``True``) or acts with the policy prior alone (fast).
     :param shield_at_predict: ``predict`` passes its actions through the shield.
     :param replay_buffer_kwargs: extra arguments of :class:`ShieldedReplayBuffer` (e.g. ``handle_timeout_termination``;
@@ -148,12 +155,12 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         learning_rate: float | Schedule = 1e-3,
         buffer_size: int = 1_000_000,
         learning_starts: int = 5000,
-        batch_size: int = 512,
+        batch_size: int | None = None,
         tau: float = 0.01,
         gamma: float | Literal["auto"] = 0.99,
         train_freq: int | tuple[int, str] = 1,
         gradient_steps: int = 1,
-        horizon: int = 5,
+        horizon: int | None = None,
         target_update_interval: int = 2,
         shield: ShieldingRule | str | None = "auto",
         absorbing: AbsorbingMode = "restart",
@@ -163,6 +170,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         refine_backup_fraction: float = 0.25,
         planner_kwargs: dict[str, Any] | None = None,
         topo_kwargs: dict[str, Any] | None = None,
+        sizes: SizesName = "cpu",
         plan_at_predict: bool = True,
         shield_at_predict: bool = True,
         compile: CompileMode = "auto",
@@ -178,6 +186,9 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
     ) -> None:
         if optimize_memory_usage:
             raise ValueError("SPPO's replay buffer keeps next observations explicitly: use optimize_memory_usage=False.")
+        named = named_sizes(sizes)
+        batch_size = named.batch_size if batch_size is None else batch_size
+        horizon = named.horizon if horizon is None else horizon
         super().__init__(
             policy,
             env,
@@ -192,7 +203,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             replay_buffer_class=ShieldedReplayBuffer,
             replay_buffer_kwargs=replay_buffer_kwargs,
             optimize_memory_usage=optimize_memory_usage,
-            policy_kwargs={**(policy_kwargs or {}), "termination": termination_model},
+            policy_kwargs={**named.policy_kwargs(), **(policy_kwargs or {}), "termination": termination_model},
             stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log,
             verbose=verbose,
@@ -217,7 +228,10 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         self.refine_backup_fraction = refine_backup_fraction
         if gamma == "auto" and self.env is not None:
             self.gamma = episode_discount(episode_length_of(self.env))
-        self.planner_config = MPPIConfig(**{"gamma": self.gamma, "horizon": horizon, **(planner_kwargs or {})})
+        self.sizes = sizes
+        self.planner_config = MPPIConfig(
+            **{"gamma": self.gamma, "horizon": horizon, **named.planner_kwargs(), **(planner_kwargs or {})}
+        )
         self.topo_config = TOPOConfig(**{"gamma": self.gamma, **(topo_kwargs or {})})
         self.plan_at_predict = plan_at_predict
         self.shield_at_predict = shield_at_predict
@@ -255,6 +269,17 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         if isinstance(self.shield_rule, LatentModelRule):  # it rolls Q̄ on this model's TOLD
             self.shield_rule.bind(self.policy.model, self._told_inputs)
         self._setup_planner_and_update()
+        if self.verbose >= 1:
+            print(self.sizes_summary())
+
+    def sizes_summary(self) -> str:
+        """The sizes this model runs at, in one line (printed at set-up with ``verbose >= 1``)."""
+        told, plan = self.policy_kwargs, self.planner_config
+        return (
+            f"SPPO sizes ({self.sizes!r} and overrides): TOLD latent {told['latent_dim']}, encoder {told['encoder_dim']}, "
+            f"hidden {told['hidden_dim']}; MPPI {plan.num_samples} samples, {plan.num_elites} elites, {plan.iterations} "
+            f"iterations, horizon {plan.horizon}; batches of {self.batch_size} sequences of {self.horizon} steps"
+        )
 
     @property
     def shield_is_learned(self) -> bool:
