@@ -6,8 +6,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from stable_baselines3.common.vec_env import DummyVecEnv
+from tiny_hyperparams import TINY_SAILR, TINY_SPPO
 
-import sppo_sb3  # noqa: F401  (registers the tasks)
+import sppo_sb3
 from sppo_sb3.envs.navigation import SafetyNavigationEnv
 from sppo_sb3.shield import ShieldFailure, ShieldWrapper
 from sppo_sb3.shield.registry import default_shielding_rule
@@ -122,3 +123,12 @@ def test_the_constraint_covers_only_what_the_level_constrains() -> None:
     assert constraint("Car", "Circle", 2).wall_both_axes and not constraint("Car", "Circle", 1).wall_both_axes
     with pytest.raises(ValueError, match="needs no shield"):
         NavigationShieldingRule("Point", "Goal", 0)
+
+
+@pytest.mark.parametrize("algo", ["SPPO", "SAILR"])
+def test_the_shielded_algorithms_find_the_rule_and_learn_behind_it(algo: str) -> None:
+    settings = {"SPPO": {**TINY_SPPO, "learning_starts": 32}, "SAILR": {**TINY_SAILR, "n_steps": 64}}[algo]
+    model = getattr(sppo_sb3, algo)("MlpPolicy", "sppo_sb3/SafetyPointGoal1-v0", shield="auto", seed=0, **settings)
+    assert isinstance(model.shield_rule, NavigationShieldingRule)
+    model.learn(128)
+    assert model.safety_metrics.violations == 0
