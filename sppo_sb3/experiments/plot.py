@@ -14,6 +14,7 @@ import pandas as pd
 
 from sppo_sb3.experiments.display import task_sort_key
 from sppo_sb3.experiments.figures import plot_curves, plot_efficiency, plot_violation_bars
+from sppo_sb3.experiments.navigation import navigation_overview_markdown, navigation_tables_markdown
 from sppo_sb3.experiments.stats import aggregate, load_results
 from sppo_sb3.experiments.tables import returns_table_markdown, safety_tables_markdown
 from sppo_sb3.experiments.velocity import (
@@ -48,6 +49,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "how the last quarter's episodes go (length, return per step, steps above the limit), "
         "and the env steps to 80%% of OmniSafe's SACLag return on HalfCheetah",
     )
+    parser.add_argument(
+        "--navigation",
+        action="store_true",
+        help="navigation-benchmark mode: curves of return and cumulative cost, tables beside OmniSafe's published rows",
+    )
     parser.add_argument("--smooth", type=int, default=5, help="rolling mean over this many episodes (default: 5)")
     parser.add_argument("--points", type=int, default=100, help="env-step grid of the curves' mean and CI (default: 100)")
     parser.add_argument("--dpi", type=int, default=100, help="PNG resolution (default: 100)")
@@ -68,6 +74,11 @@ def write_figures(
     table = aggregate(summaries)
     if args.velocity:
         written = write_velocity_figures(args, table, curves, tasks, out)
+    elif args.navigation:
+        written = write_cost_curves(args, curves, tasks, out)
+        (out / "navigation_tables.md").write_text(navigation_tables_markdown(table))
+        (out / "navigation_overview.md").write_text(navigation_overview_markdown(table))
+        written += ["navigation_tables.md", "navigation_overview.md"]
     elif args.fig7:
         plot_curves(curves, tasks, "return", "episode return", out / "fig7_curves.png", args.points, args.smooth, args.dpi)
         (out / "fig7_table.md").write_text(returns_table_markdown(table))
@@ -84,6 +95,16 @@ def write_figures(
     return [*written, "aggregate.csv"]
 
 
+def write_cost_curves(
+    args: argparse.Namespace, curves: dict[tuple[str, str], list[pd.DataFrame]], tasks: list[str], out: Path
+) -> list[str]:
+    """The suites' curves: episode return, and the cost paid while learning; returns the files' names."""
+    with_cost = {key: [curve.assign(cumulative_cost=curve["cost"].cumsum()) for curve in runs] for key, runs in curves.items()}
+    plot_curves(with_cost, tasks, "return", "episode return", out / "learning_curves.png", args.points, args.smooth, args.dpi)
+    plot_curves(with_cost, tasks, "cumulative_cost", "cumulative training cost", out / "cumulative_cost.png", args.points)
+    return ["learning_curves.png", "cumulative_cost.png"]
+
+
 def write_velocity_figures(
     args: argparse.Namespace,
     table: pd.DataFrame,
@@ -92,13 +113,11 @@ def write_velocity_figures(
     out: Path,
 ) -> list[str]:
     """The velocity benchmark's figures and tables (:mod:`sppo_sb3.experiments.velocity`); returns the files' names."""
-    with_cost = {key: [curve.assign(cumulative_cost=curve["cost"].cumsum()) for curve in runs] for key, runs in curves.items()}
-    plot_curves(with_cost, tasks, "return", "episode return", out / "learning_curves.png", args.points, args.smooth, args.dpi)
-    plot_curves(with_cost, tasks, "cumulative_cost", "cumulative training cost", out / "cumulative_cost.png", args.points)
+    written = write_cost_curves(args, curves, tasks, out)
     (out / "velocity_tables.md").write_text(velocity_tables_markdown(table))
     (out / "velocity_overview.md").write_text(velocity_overview_markdown(table))
     (out / "late_episodes.md").write_text(late_episodes_markdown(curves))
-    written = ["learning_curves.png", "cumulative_cost.png", "velocity_tables.md", "velocity_overview.md", "late_episodes.md"]
+    written += ["velocity_tables.md", "velocity_overview.md", "late_episodes.md"]
     if TARGET_TASK in tasks:
         target = target_return()
         runs = seed_efficiency(curves, TARGET_TASK, target)

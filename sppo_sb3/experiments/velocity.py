@@ -10,34 +10,13 @@ cost.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import pandas as pd
 
 from sppo_sb3.envs.velocity import ANT, HALF_CHEETAH, HOPPER, SWIMMER, WALKER2D
 from sppo_sb3.experiments.display import VELOCITY_TASK_NAMES, algo_sort_key, display_name, task_title
-from sppo_sb3.experiments.tables import INTERVAL_LEGEND, estimate_cell, values_cell
-
-#: the OmniSafe commit the published rows were read at
-OMNISAFE_COMMIT = "15603dd7a654a991d0a4648216b69d60b81a6366"
-
-
-@dataclass(frozen=True)
-class PublishedRow:
-    """One of OmniSafe's published results.
-
-    :param algorithm: OmniSafe's name of the algorithm.
-    :param budget: env steps of training.
-    :param reward: the final policy's episode reward, mean and std over seeds.
-    :param cost: its episode cost, mean and std over seeds.
-    """
-
-    algorithm: str
-    budget: float
-    reward: tuple[float, float]
-    cost: tuple[float, float]
-
+from sppo_sb3.experiments.suites import OMNISAFE_COMMIT, PublishedRow, overview_markdown, published_tables_markdown
+from sppo_sb3.experiments.tables import values_cell
 
 #: the published algorithms of :data:`OMNISAFE_VELOCITY` and their budgets: SAC, SACLag, CPO, and PPOLag (the
 #: counterpart of this package's PDO)
@@ -88,15 +67,6 @@ TARGET_TASK = HALF_CHEETAH.env_id
 #: training episodes averaged before the return is compared with the target (the tables' "last 10")
 TARGET_WINDOW = 10
 
-#: the columns of a velocity table: (summary key, digits, title)
-VELOCITY_ESTIMATES: tuple[tuple[str, int, str], ...] = (
-    ("return_last_n", 1, "Return, last 10 training episodes"),
-    ("eval_unshielded_return", 1, "Deployed without shield: return"),
-    ("eval_unshielded_violations", 2, "Deployed without shield: cost per episode"),
-    ("cumulative_violations", 0, "Training cost (sum over training)"),
-    ("safety_rate", 1, "Training episodes with cost 0 (%)"),
-)
-
 
 def target_return(task: str = TARGET_TASK) -> float:
     """:data:`TARGET_FRACTION` of OmniSafe's published SACLag return on ``task``."""
@@ -104,92 +74,26 @@ def target_return(task: str = TARGET_TASK) -> float:
     return TARGET_FRACTION * saclag.reward[0]
 
 
-def _our_row(row: pd.Series) -> str:
-    steps = row.get("steps_mean", float("nan"))
-    interventions = row.get("cumulative_interventions_mean", float("nan"))
-    wall = row.get("wall_clock_s_mean", float("nan"))
-    cells = [display_name(str(row["algo"])), f"{steps:.0e}" if np.isfinite(steps) else "–"]
-    cells += [estimate_cell(row, key, digits) for key, digits, _ in VELOCITY_ESTIMATES]
-    cells += [
-        "–" if not np.isfinite(interventions) else f"{interventions:.0f}",
-        "–" if not np.isfinite(wall) else f"{wall / 60:.0f}",
-    ]
-    return "| " + " | ".join(cells) + " |"
-
-
-def _published_row(row: PublishedRow) -> str:
-    reward, cost = (f"{mean:.2f} ± {std:.2f}" for mean, std in (row.reward, row.cost))
-    return f"| OmniSafe {row.algorithm} | {row.budget:.0e} | – | {reward} | {cost} | – | – | – | – |"
-
-
 def velocity_tables_markdown(table: pd.DataFrame) -> str:
     """One table per velocity task: our algorithms (mean [95% CI] over seeds), then OmniSafe's published rows.
 
     :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
     """
-    lines = [
-        "<!-- written by scripts/plot_results.py --velocity -->",
-        "Ours: the training runs' last 10 episodes; the final policy deployed alone for 10 deterministic episodes (its",
-        "cost per episode is OmniSafe's measure); the cost paid over training (a step above the threshold costs 1) and",
-        "the share of training episodes that paid none; shield interventions; wall clock per run. OmniSafe: the final",
-        f"policy's episode reward and cost, mean ± std over 5 seeds, at its own budget (commit {OMNISAFE_COMMIT[:8]}).",
-        INTERVAL_LEGEND,
-        "",
-    ]
-    header = "| Method | Env steps |" + "".join(f" {title} |" for _, _, title in VELOCITY_ESTIMATES)
-    header += " Shield interventions | Wall clock (min) |"
-    for task, group in table.groupby("task", sort=True):
-        lines += [f"### {task_title(str(task))}", "", header, "|" + "---|" * header.count(" |")]
-        lines += [_our_row(row) for _, row in group.iterrows()]
-        lines += [_published_row(row) for row in OMNISAFE_VELOCITY.get(str(task), ())]
-        lines.append("")
-    return "\n".join(lines)
-
-
-#: the method the overview sets against the best of the others
-OURS = "sppo"
-
-
-def _overview_cell(row: pd.Series) -> str:
-    """Return of the last 10 training episodes (mean [95% CI] over seeds), mean training cost and seeds."""
-    seeds = int(row["seeds"])
-    mean = row["return_last_n_mean"]
-    returns = estimate_cell(row, "return_last_n", 0) if seeds > 1 else f"{mean:.0f}"
-    return f"{returns}, cost {row['cumulative_violations_mean']:.0f}, {seeds} seed{'s' if seeds > 1 else ''}"
+    caption = (
+        "Ours: the training runs' last 10 episodes; the final policy deployed alone for 10 deterministic episodes (its\n"
+        "cost per episode is OmniSafe's measure); the cost paid over training (a step above the threshold costs 1) and\n"
+        "the share of training episodes that paid none; shield interventions; wall clock per run. OmniSafe: the final\n"
+        f"policy's episode reward and cost, mean ± std over 5 seeds, at its own budget (commit {OMNISAFE_COMMIT[:8]})."
+    )
+    return published_tables_markdown(table, OMNISAFE_VELOCITY, caption, "--velocity")
 
 
 def velocity_overview_markdown(table: pd.DataFrame) -> str:
-    """The grid at a glance: per task, every algorithm's final training return and training cost, the best of the
-    other methods, and whether :data:`OURS` is at or above it (on the means).
+    """The grid at a glance (:func:`~sppo_sb3.experiments.suites.overview_markdown`) with the velocity tasks' names.
 
     :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
     """
-    algos = sorted(table["algo"].unique(), key=algo_sort_key)
-    header = "| Task |" + "".join(f" {display_name(str(algo))} |" for algo in algos) + " Best of the others | SPPO ≥ it? |"
-    lines = [
-        "<!-- written by scripts/plot_results.py --velocity -->",
-        "Return of the last 10 training episodes (mean [95% CI] over seeds), the training cost paid (mean over seeds)",
-        "and the seeds. The last columns compare the means.",
-        "",
-        header,
-        "|" + "---|" * header.count(" |"),
-    ]
-    at_or_above = compared = 0
-    for task, group in table.groupby("task", sort=True):
-        by_algo = group.set_index("algo")
-        cells = [_overview_cell(by_algo.loc[algo]) if algo in by_algo.index else "–" for algo in algos]
-        others = by_algo.drop(index=OURS, errors="ignore")["return_last_n_mean"].dropna()
-        best, verdict = "–", "–"
-        if len(others):
-            best = f"{display_name(str(others.idxmax()))} {others.max():.0f}"
-        if len(others) and OURS in by_algo.index:
-            compared += 1
-            ours_wins = bool(by_algo.loc[OURS, "return_last_n_mean"] >= others.max())
-            at_or_above += ours_wins
-            verdict = "yes" if ours_wins else "no"
-        lines.append("| " + " | ".join([VELOCITY_TASK_NAMES.get(str(task), str(task)), *cells, best, verdict]) + " |")
-    lines += ["", f"SPPO's mean is at or above the best of the others on {at_or_above} of {compared} tasks.", ""]
-    return "\n".join(lines)
+    return overview_markdown(table, VELOCITY_TASK_NAMES, "--velocity")
 
 
 #: the end of training that :func:`late_episodes` reads: episodes that end in this last share of a run's env steps
