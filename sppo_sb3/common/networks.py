@@ -13,18 +13,21 @@ def mlp(
     out_dim: int,
     activation: type[nn.Module] = nn.ELU,
     zero_head: bool = False,
+    norm: bool = False,
 ) -> nn.Sequential:
-    """``Linear → activation`` for each hidden width, then a final ``Linear``.
+    """``Linear → activation`` (``Linear → LayerNorm → activation`` with ``norm``) for each hidden width, then a final
+    ``Linear``.
 
     :param in_dim: input size.
     :param hidden: the hidden layers' widths.
     :param out_dim: output size.
     :param activation: the hidden layers' activation class.
     :param zero_head: zero the final layer's weight and bias (a learned rule's head, whose bias its owner sets).
+    :param norm: a LayerNorm between each hidden ``Linear`` and its activation (TD-MPC2's hidden layers).
     """
     layers: list[nn.Module] = []
     for width in hidden:
-        layers += [nn.Linear(in_dim, width), activation()]
+        layers += [nn.Linear(in_dim, width), *([nn.LayerNorm(width)] if norm else []), activation()]
         in_dim = width
     head = nn.Linear(in_dim, out_dim)
     if zero_head:

@@ -93,10 +93,10 @@ class _Cast(nn.Module):
 
 
 def low_precision_copy(model: TOLD, dtype: th.dtype) -> TOLD:
-    """A copy of ``model`` with hidden layers in ``dtype`` and the last layer of the reward, value and termination
-    heads in fp32."""
+    """A copy of ``model`` with hidden layers in ``dtype`` and the last layer of the reward, value (every head of the
+    ensemble) and termination heads in fp32."""
     shadow = copy.deepcopy(model).to(dtype)
-    for name in ("reward", "q1", "q2", "termination"):
+    for name in ("reward", *shadow.q_names, "termination"):
         head: nn.Sequential | None = getattr(shadow, name)
         if head is None:
             continue
@@ -145,7 +145,8 @@ def draw_noise(
 def trajectory_return(
     model: TOLD, z: th.Tensor, actions: th.Tensor, gamma: float, policy_std: float, terminal_noise: th.Tensor
 ) -> th.Tensor:
-    """``Φ = Σ_{t<H} γ^t c_t R(z_t, a_t) + γ^H c_H min Q(z_H, π(z_H))`` (eq. 10) for a flat batch.
+    """``Φ = Σ_{t<H} γ^t c_t R(z_t, a_t) + γ^H c_H Q(z_H, π(z_H))`` (eq. 10) for a flat batch, with ``Q``
+    :meth:`TOLD.min_q` (the min of the twin heads; the mean of the five for the ``"tdmpc2"`` TOLD).
 
     ``c_t`` is the probability that the imagined episode of ``M̃`` is still running at step ``t`` (the product of
     :meth:`TOLD.continuation` before ``t``): after a predicted absorbing step ``s†`` adds no reward and no value

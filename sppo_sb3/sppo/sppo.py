@@ -31,10 +31,10 @@ from sppo_sb3.sppo.buffers import AbsorbingMode, ShieldedReplayBuffer
 from sppo_sb3.sppo.compile import CompiledFunction, CompileMode, check_compile_mode, should_compile
 from sppo_sb3.sppo.optim import init_optimizer_state, supports_tensor_step
 from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
-from sppo_sb3.sppo.policies import TOLDPolicy
+from sppo_sb3.sppo.policies import TOLDName, TOLDPolicy, check_told_name
 from sppo_sb3.sppo.sizes import SizesName, named_sizes
 from sppo_sb3.sppo.time_scale import PAPER_GAMMA, episode_discount, episode_length_of
-from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, topo_update
+from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, draw_target_heads, topo_update
 
 SelfSPPO = TypeVar("SelfSPPO", bound="SPPO")
 
@@ -98,6 +98,12 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         interventions and real terminations, not time-limit truncations), and plan with it: eq. 10 adds no reward and
         no value after a predicted absorbing step. ``False`` (default) is TD-MPC's model and the paper's, which plans
         as if no episode ended; ``docs/results.md`` (the absorbing MDP) has the benchmark that chose the default.
+    :param told: TOLD's networks (:class:`~sppo_sb3.sppo.policies.TOLD`): ``"paper"`` (default) is TD-MPC's (v1)
+        model, the paper's; ``"tdmpc2"`` adds TD-MPC2's robustness pieces: ``Linear → LayerNorm → Mish`` hidden
+        layers, a SimNorm latent (softmax over groups of 8; ``latent_dim`` must be a multiple of 8) and five Q heads,
+        whose TD target is the min of two drawn at random per update and whose mean the planner and the policy use.
+        Not included: TD-MPC2's two-hot discrete regression of reward and value, its stochastic policy with entropy
+        and percentile-scaled Q, and its larger sizes. Saved with the model (in ``policy_kwargs``).
     :param refine_shield: Alg. 1 line 12, ``G ← UpdateShieldingRule(B)``: the rule learns from the real transitions
         of ``B`` during :meth:`train` (as many minibatches of ``batch_size`` as TOPO updates). Needs a learnable rule
         (:class:`~sppo_sb3.shield.RefinableRule`): :class:`~sppo_sb3.shield.LearnedDynamicsRule` (a learned model,
@@ -132,7 +138,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
     :param stats_window_size: episodes averaged in the ``rollout/`` logs and the ``safety/ep_*_mean`` values.
     :param tensorboard_log: TensorBoard log folder (``None``: none).
     :param policy_kwargs: arguments of :class:`TOLDPolicy`: the TOLD sizes ``latent_dim``, ``encoder_dim``,
-        ``hidden_dim`` and the optimiser's ``optimizer_class``, ``optimizer_kwargs``.
+        ``hidden_dim`` and the optimiser's ``optimizer_class``, ``optimizer_kwargs`` (the variant comes from ``told``).
     :param verbose: 0 none, 1 info, 2 debug.
     :param seed: seed of the random generators (Python's, numpy's, torch's, the action space's and the envs').
     :param device: torch device: ``"cpu"``, ``"cuda"`` or ``"auto"`` (CUDA where available).
@@ -166,6 +172,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         absorbing: AbsorbingMode = "restart",
         absorbing_penalty: float | None = None,
         termination_model: bool = False,
+        told: TOLDName = "paper",
         refine_shield: bool | Literal["auto"] = "auto",
         refine_backup_fraction: float = 0.25,
         planner_kwargs: dict[str, Any] | None = None,
@@ -186,6 +193,9 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
     ) -> None:
         if optimize_memory_usage:
             raise ValueError("SPPO's replay buffer keeps next observations explicitly: use optimize_memory_usage=False.")
+        check_told_name(told)
+        if (given := (policy_kwargs or {}).get("told", told)) != told:
+            raise ValueError(f"Choose TOLD's variant with SPPO's told argument (told={given!r}), not policy_kwargs.")
         named = named_sizes(sizes)
         batch_size = named.batch_size if batch_size is None else batch_size
         horizon = named.horizon if horizon is None else horizon
@@ -203,7 +213,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             replay_buffer_class=ShieldedReplayBuffer,
             replay_buffer_kwargs=replay_buffer_kwargs,
             optimize_memory_usage=optimize_memory_usage,
-            policy_kwargs={**named.policy_kwargs(), **(policy_kwargs or {}), "termination": termination_model},
+            policy_kwargs={**named.policy_kwargs(), **(policy_kwargs or {}), "termination": termination_model, "told": told},
             stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log,
             verbose=verbose,
@@ -218,6 +228,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         self.absorbing = absorbing
         self.absorbing_penalty = absorbing_penalty
         self.termination_model = termination_model
+        self.told = told
         if refine_shield not in (True, False, "auto"):
             raise ValueError(f'refine_shield is True, False or "auto" (refine a learnable rule); got {refine_shield!r}.')
         self.refine_shield = refine_shield if refine_shield == "auto" else bool(refine_shield)
@@ -447,7 +458,8 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             noise = th.randn(batch.actions.shape, device=self.device)
             self._n_updates += 1
             ema = th.tensor(self.tau if self._n_updates % self.target_update_interval == 0 else 0.0, device=self.device)
-            stats = self._topo_update(*models, *optimizers, batch, noise, lr, ema, self.topo_config)
+            heads = draw_target_heads(policy.model, self.device)  # None (nothing drawn) for the paper's TOLD
+            stats = self._topo_update(*models, *optimizers, batch, noise, lr, ema, self.topo_config, heads)
             self._train_stats += stats
             self._train_stats_count += 1
         self.logger.record(N_UPDATES_LOG_KEY, self._n_updates, exclude="tensorboard")  # as SB3's off-policy algorithms

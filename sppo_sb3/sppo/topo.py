@@ -9,6 +9,7 @@ compile it into one graph; its eager run is the reference.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import torch as th
@@ -52,22 +53,51 @@ def reward_loss(predicted: th.Tensor, reward: th.Tensor) -> th.Tensor:
     return (predicted.squeeze(-1) - reward) ** 2
 
 
+TD_TARGET_HEADS = 2
+"""How many of the ``"tdmpc2"`` TOLD's Q heads the TD target takes the min of (TD-MPC2's)."""
+
+
+def draw_target_heads(model: TOLD, device: th.device | str = "cpu") -> th.Tensor | None:
+    """The Q heads :func:`td_target` takes the min of in one update: ``None`` (all: both twin heads) for the
+    ``"paper"`` TOLD, which draws nothing; for ``"tdmpc2"`` :data:`TD_TARGET_HEADS` distinct heads drawn at random
+    with torch's global RNG, as a tensor of indices, drawn outside the (compiled) update and passed in."""
+    if model.told == "paper":
+        return None
+    return th.randperm(model.num_q, device=device)[:TD_TARGET_HEADS]
+
+
 @th.no_grad()
 def td_target(
-    model: TOLD, target: TOLD, next_obs: th.Tensor, reward: th.Tensor, terminal: th.Tensor, noise: th.Tensor, cfg: TOPOConfig
+    model: TOLD,
+    target: TOLD,
+    next_obs: th.Tensor,
+    reward: th.Tensor,
+    terminal: th.Tensor,
+    noise: th.Tensor,
+    cfg: TOPOConfig,
+    heads: th.Tensor | None = None,
 ) -> th.Tensor:
-    """``r + γ (1 - done) min Q⁻(z', π(z'))`` with ``z' = h(s')`` — the target of eq. 16 (twin-Q, TD-MPC).
+    """``r + γ (1 - done) min_k Q⁻_k(z', π(z'))`` with ``z' = h(s')`` — the target of eq. 16.
+
+    The min runs over the target network's heads ``heads``: all of them when None (the ``"paper"`` TOLD: its twin
+    heads, TD-MPC's target), or the two that :func:`draw_target_heads` drew for this update (``"tdmpc2"``).
 
     :param noise: standard normal draws for the exploration noise on ``π(z')``, shaped like the actions.
+    :param heads: indices of the target's Q heads to take the min of (a 1-d integer tensor), or None for all.
     """
     next_z = model.encode(next_obs)
-    next_q = target.min_q(next_z, model.policy(next_z, cfg.policy_std, noise)).squeeze(-1)
-    return reward + cfg.gamma * (1.0 - terminal) * next_q
+    values = th.stack(target.q(next_z, model.policy(next_z, cfg.policy_std, noise)))
+    if heads is not None:
+        values = values.index_select(0, heads)
+    return reward + cfg.gamma * (1.0 - terminal) * values.amin(dim=0).squeeze(-1)
 
 
-def value_loss(q1: th.Tensor, q2: th.Tensor, target: th.Tensor) -> th.Tensor:
-    """``L_v = ‖Q(z_i, a_i) - target‖²`` for both heads (eq. 16), per sample."""
-    return (q1.squeeze(-1) - target) ** 2 + (q2.squeeze(-1) - target) ** 2
+def value_loss(qs: Sequence[th.Tensor], target: th.Tensor) -> th.Tensor:
+    """``L_v = ‖Q(z_i, a_i) - target‖²`` summed over all Q heads (eq. 16), per sample."""
+    loss = (qs[0].squeeze(-1) - target) ** 2
+    for q in qs[1:]:
+        loss = loss + (q.squeeze(-1) - target) ** 2
+    return loss
 
 
 def consistency_loss(predicted_z: th.Tensor, target_z: th.Tensor) -> th.Tensor:
@@ -97,25 +127,33 @@ def roll_latents(model: TOLD, obs: th.Tensor, actions: th.Tensor) -> th.Tensor:
     return th.stack(latents)
 
 
-def model_loss(model: TOLD, target: TOLD, batch: SequenceSamples, noise: th.Tensor, cfg: TOPOConfig) -> tuple[th.Tensor, ...]:
+def model_loss(
+    model: TOLD,
+    target: TOLD,
+    batch: SequenceSamples,
+    noise: th.Tensor,
+    cfg: TOPOConfig,
+    heads: th.Tensor | None = None,
+) -> tuple[th.Tensor, ...]:
     """``J = Σ_i λ^i (c1 L_r + c2 L_v + c3 L_c + c_T L_T)`` (eqs. 13, 14) over a batch of sequences, scaled by ``1/H``.
 
     ``L_T``, the termination head's cross-entropy, is not in the paper's eq. 14; it is 0 without the head.
 
     :param noise: ``(H, B, A)`` standard normal draws for the TD targets' policy noise.
+    :param heads: the target heads of the TD target's min (:func:`td_target`; None: all).
     :return: the loss, the rolled latents ``z_0 .. z_(H-1)`` (detached, for the policy loss) and the weighted
         reward, value, consistency and termination terms.
     """
     horizon = batch.actions.shape[0]
     with th.no_grad():
         target_z = target.encode(batch.next_observations)
-        target_q = td_target(model, target, batch.next_observations, batch.rewards, batch.terminals, noise, cfg)
+        target_q = td_target(model, target, batch.next_observations, batch.rewards, batch.terminals, noise, cfg, heads)
     latents = roll_latents(model, batch.observations, batch.actions)
-    q1, q2 = model.q(latents[:-1], batch.actions)
+    qs = model.q(latents[:-1], batch.actions)
     predicted_reward = model.predicted_reward(latents[:-1], batch.actions)
     weights = rho_weights(cfg, horizon, latents.device)
     reward = (weights * (reward_loss(predicted_reward, batch.rewards) * batch.mask).mean(dim=1)).sum()
-    value = (weights * (value_loss(q1, q2, target_q) * batch.mask).mean(dim=1)).sum()
+    value = (weights * (value_loss(qs, target_q) * batch.mask).mean(dim=1)).sum()
     consistency = (weights * (consistency_loss(latents[1:], target_z) * batch.consistency_mask).mean(dim=1)).sum()
     total = cfg.reward_coef * reward + cfg.value_coef * value + cfg.consistency_coef * consistency
     termination = th.zeros((), device=latents.device)
@@ -127,7 +165,8 @@ def model_loss(model: TOLD, target: TOLD, batch: SequenceSamples, noise: th.Tens
 
 
 def policy_loss(model: TOLD, latents: th.Tensor, mask: th.Tensor, cfg: TOPOConfig) -> th.Tensor:
-    """``-Σ_i λ^i min Q(z_i, π(z_i))`` over the rolled (detached) ``(H, B, latent)`` latents — TD-MPC's policy objective."""
+    """``-Σ_i λ^i Q(z_i, π(z_i))`` over the rolled (detached) ``(H, B, latent)`` latents — TD-MPC's policy objective,
+    with ``Q`` :meth:`TOLD.min_q` (``"paper"``: the min of the twin heads; ``"tdmpc2"``: the mean of the five)."""
     values = model.min_q(latents, model.policy(latents)).squeeze(-1)
     weights = rho_weights(cfg, latents.shape[0], latents.device)
     return -(weights * (values * mask).mean(dim=1)).sum() / latents.shape[0]
@@ -143,6 +182,7 @@ def topo_update(
     lr: th.Tensor,
     ema_weight: th.Tensor,
     cfg: TOPOConfig,
+    heads: th.Tensor | None = None,
 ) -> th.Tensor:
     """One TOPO update (Alg. 3 lines 3–13): a model step on ``J``, a policy step on the updated ``Q``, the EMA target.
 
@@ -152,11 +192,13 @@ def topo_update(
     :param noise: ``(H, B, A)`` standard normal draws for the TD targets' policy noise.
     :param lr: learning rate of both optimisers (0-d tensor).
     :param ema_weight: ``τ`` on the updates that refresh the target network, else 0 (0-d tensor).
+    :param heads: the target's Q heads whose min is the TD target (:func:`draw_target_heads`: None for the
+        ``"paper"`` TOLD, two random indices for ``"tdmpc2"``); an input, so that compiled and eager updates agree.
     :return: the statistics named by :data:`TOPO_STATS`, as one detached tensor (read it when logging, not per step).
     """
     model_params = [p for group in optimizer.param_groups for p in group["params"]]
     pi_params = [p for group in pi_optimizer.param_groups for p in group["params"]]
-    loss, latents, reward, value, consistency, termination = model_loss(model, target, batch, noise, cfg)
+    loss, latents, reward, value, consistency, termination = model_loss(model, target, batch, noise, cfg, heads)
     grads, grad_norm = clip_by_total_norm(th.autograd.grad(loss, model_params), cfg.grad_clip)
     apply_gradients(optimizer, grads, lr)
     pi_loss = policy_loss(model, latents, batch.mask, cfg)
