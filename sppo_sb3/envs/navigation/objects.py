@@ -100,6 +100,10 @@ class ObjectGroup:
         """The height of the object's body above the floor."""
         return self.size
 
+    def rotation(self, index: int, drawn: float) -> float:
+        """The heading of the group's ``index``-th object, given the one the layout drew for it (most keep it)."""
+        return drawn
+
     def body_xml(self, name: str, mocap: bool = False) -> str:
         """The object's ``<body>`` at the origin (the world places it at reset).
 
@@ -352,8 +356,8 @@ class Sigwalls(ObjectGroup):
     def height(self) -> float:
         return 0.25
 
-    def wall_rotation(self, index: int) -> float:
-        """The third and fourth walls run along x."""
+    def rotation(self, index: int, drawn: float) -> float:
+        """The drawn heading is ignored: the third and fourth walls run along x, the others along y."""
         return np.pi / 2 if index >= 2 else 0.0
 
     def cost_terms(self, world: World, goal_button: int | None = None) -> dict[str, float]:
@@ -388,3 +392,6 @@ class CircleZone(ObjectGroup):
     @cached_property
     def bodies(self) -> list[str]:
         return ["world"]  # Safety-Gymnasium's lidar sees the circle at the origin
+
+    def rotation(self, index: int, drawn: float) -> float:
+        return 0.0  # the drawn heading is ignored

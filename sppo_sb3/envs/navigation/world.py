@@ -111,11 +111,7 @@ class World:
 
     def _place_object(self, group: ObjectGroup, index: int, name: str, pos: np.ndarray, rot: float) -> None:
         model = self.model
-        if hasattr(group, "wall_rotation"):
-            rot = group.wall_rotation(index)
-        elif group.name == "circle":
-            rot = 0.0
-        quat = rot2quat(rot)
+        quat = rot2quat(group.rotation(index, rot))
         if isinstance(group, Gremlins):
             obj, mocap = group.object_name(name), group.mocap_name(name)
             self._set_free_joint(obj, np.r_[pos, quat])

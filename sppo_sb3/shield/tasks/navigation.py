@@ -262,10 +262,11 @@ class NavigationShieldingRule(MujocoShieldingRule):
             outputs["state"][..., : self._physics] = rolled["state"]
             outputs["state"][..., self._physics :] = mocap[:, None]
 
-    def _state_obs(self, obs: np.ndarray) -> np.ndarray:
-        """The warm starts' keys of ``obs``: the ``qpos`` and ``qvel`` of the states behind them."""
-        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
-        return self.layout.obs_from_states(self.layout.states_from_obs(self.model, obs))
+    def tracked_states(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The states behind ``obs``, read once from their envs (always known), and the warm plans stored under them."""
+        states = self.layout.states_from_obs(self.model, obs)
+        warm, used, _ = self.warm_starts.lookup(self.layout.obs_from_states(states))
+        return states, np.ones(len(states), dtype=bool), warm, used
 
 
 def navigation_shielding_rule(robot: str, task: str, level: int, alpha: float = 0.1, **kwargs: Any) -> NavigationShieldingRule:
