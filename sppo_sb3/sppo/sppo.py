@@ -33,7 +33,7 @@ from sppo_sb3.sppo.optim import init_optimizer_state, supports_tensor_step
 from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
 from sppo_sb3.sppo.policies import TOLDName, TOLDPolicy, check_told_name
 from sppo_sb3.sppo.sizes import SizesName, named_sizes
-from sppo_sb3.sppo.time_scale import PAPER_GAMMA, episode_discount, episode_length_of
+from sppo_sb3.sppo.time_scale import PAPER_GAMMA, episode_discount, episode_length_of, task_terminates
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, draw_target_heads, topo_update
 
 SelfSPPO = TypeVar("SelfSPPO", bound="SPPO")
@@ -96,8 +96,10 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         rule's ``penalty``.
     :param termination_model: give TOLD a termination head, trained on ``B̃``'s terminal flags (absorbing
         interventions and real terminations, not time-limit truncations), and plan with it: eq. 10 adds no reward and
-        no value after a predicted absorbing step. ``False`` (default) is TD-MPC's model and the paper's, which plans
-        as if no episode ended; ``docs/results.md`` (the absorbing MDP) has the benchmark that chose the default.
+        no value after a predicted absorbing step. ``"auto"`` (default): on where the task ends episodes on its own
+        (gymnasium's MuJoCo robots that fall: Hopper, Walker2d, Ant, Humanoid and their velocity tasks, see
+        :func:`~sppo_sb3.sppo.time_scale.task_terminates`), off elsewhere. ``False`` is TD-MPC's model and the paper's,
+        which plans as if no episode ended; the resolved value is :attr:`termination_model`.
     :param told: TOLD's networks (:class:`~sppo_sb3.sppo.policies.TOLD`): ``"paper"`` (default) is TD-MPC's (v1)
         model, the paper's; ``"tdmpc2"`` adds TD-MPC2's robustness pieces: ``Linear → LayerNorm → Mish`` hidden
         layers, a SimNorm latent (softmax over groups of 8; ``latent_dim`` must be a multiple of 8) and five Q heads,
@@ -171,7 +173,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         shield: ShieldingRule | str | None = "auto",
         absorbing: AbsorbingMode = "restart",
         absorbing_penalty: float | None = None,
-        termination_model: bool = False,
+        termination_model: bool | Literal["auto"] = "auto",
         told: TOLDName = "paper",
         refine_shield: bool | Literal["auto"] = "auto",
         refine_backup_fraction: float = 0.25,
@@ -194,6 +196,8 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         if optimize_memory_usage:
             raise ValueError("SPPO's replay buffer keeps next observations explicitly: use optimize_memory_usage=False.")
         check_told_name(told)
+        if termination_model not in (True, False, "auto"):
+            raise ValueError(f'termination_model is True, False or "auto" (where the task ends), not {termination_model!r}.')
         if (given := (policy_kwargs or {}).get("told", told)) != told:
             raise ValueError(f"Choose TOLD's variant with SPPO's told argument (told={given!r}), not policy_kwargs.")
         named = named_sizes(sizes)
@@ -213,7 +217,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             replay_buffer_class=ShieldedReplayBuffer,
             replay_buffer_kwargs=replay_buffer_kwargs,
             optimize_memory_usage=optimize_memory_usage,
-            policy_kwargs={**named.policy_kwargs(), **(policy_kwargs or {}), "termination": termination_model, "told": told},
+            policy_kwargs={**named.policy_kwargs(), **(policy_kwargs or {}), "told": told},
             stats_window_size=stats_window_size,
             tensorboard_log=tensorboard_log,
             verbose=verbose,
@@ -227,7 +231,10 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         self.shield = shield
         self.absorbing = absorbing
         self.absorbing_penalty = absorbing_penalty
-        self.termination_model = termination_model
+        if termination_model == "auto":
+            termination_model = self.env is not None and task_terminates(self.env)
+        self.termination_model = bool(termination_model)
+        self.policy_kwargs["termination"] = self.termination_model
         self.told = told
         if refine_shield not in (True, False, "auto"):
             raise ValueError(f'refine_shield is True, False or "auto" (refine a learnable rule); got {refine_shield!r}.')

@@ -1,9 +1,15 @@
-"""The discount from the task's time scale, so that ``γ`` looks as far ahead on an 8 ms robot as on a 0.1 s one.
+"""What SPPO reads from the task: the discount from its time scale, and whether its episodes end on their own.
+
+The discount, so that ``γ`` looks as far ahead on an 8 ms robot as on a 0.1 s one.
 
 With ``γ = 0.99`` the effective horizon ``1 / (1 - γ)`` is 100 steps: 10 s on the Point Robot (``dt = 0.1``), 0.8 s on
 Hopper and Walker2d (8 ms steps), too short to see a fall coming. TD-MPC2 (Hansen et al. 2024) sets the discount from
 the episode length ``L`` instead: ``γ = (L/5 - 1) / (L/5)``, clipped to ``[0.95, 0.995]``, which gives the paper's
 0.99 on the Point Robot's 500-step episodes and 0.995 on 1000-step MuJoCo episodes.
+
+Termination: a planner that sums reward and value past an imagined fall plans as if the robot could not fall. TD-MPC2
+refuses such tasks unless its episodic head is on; SPPO turns its termination head on where the task ends episodes
+on its own (:func:`task_terminates`).
 """
 
 from __future__ import annotations
@@ -35,3 +41,17 @@ def episode_length_of(env: VecEnv) -> int | None:
     specs = env.get_attr("spec")
     lengths = {getattr(spec, "max_episode_steps", None) for spec in specs}
     return lengths.pop() if len(lengths) == 1 else None
+
+
+#: the attribute by which gymnasium's MuJoCo robots (Hopper, Walker2d, Ant, Humanoid, their velocity tasks) say that an
+#: unhealthy state ends the episode
+UNHEALTHY_TERMINATES = "_terminate_when_unhealthy"
+
+
+def task_terminates(env: VecEnv) -> bool:
+    """Whether the task ends an episode on its own (a fall), not only at its time limit.
+
+    Read from gymnasium's MuJoCo convention, ``terminate_when_unhealthy`` (:data:`UNHEALTHY_TERMINATES`); every other
+    task counts as one that does not terminate (``SPPO(termination_model=True)`` says otherwise).
+    """
+    return env.has_attr(UNHEALTHY_TERMINATES) and all(bool(flag) for flag in env.get_attr(UNHEALTHY_TERMINATES))

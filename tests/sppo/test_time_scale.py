@@ -1,4 +1,5 @@
-"""The discount from the task's time scale (``gamma="auto"``): TD-MPC2's rule from the episode length."""
+"""What SPPO reads from the task: the discount from its time scale (``gamma="auto"``, TD-MPC2's rule from the episode
+length) and whether it terminates (``termination_model="auto"``)."""
 
 from __future__ import annotations
 
@@ -48,3 +49,38 @@ def test_the_resolved_discount_is_saved(tmp_path: Path) -> None:
     model.save(tmp_path / "model")
     loaded = SPPO.load(tmp_path / "model")
     assert loaded.gamma == loaded.planner_config.gamma == loaded.topo_config.gamma == pytest.approx(0.995)
+
+
+@pytest.mark.parametrize(
+    ("env_id", "kwargs", "terminates"),
+    [
+        ("sppo_sb3/SafetyHopperVelocity-v1", {}, True),
+        ("sppo_sb3/SafetyAntVelocity-v1", {}, True),
+        ("sppo_sb3/SafetyHopperVelocity-v1", {"terminate_when_unhealthy": False}, False),
+        ("sppo_sb3/SafetyHalfCheetahVelocity-v1", {}, False),
+        ("SafePointCircle-v0", {}, False),
+    ],
+)
+def test_termination_model_by_default_where_the_task_falls(env_id: str, kwargs: dict, terminates: bool) -> None:
+    """The planner stops summing at an imagined fall on the robots that fall, and stays the paper's elsewhere."""
+    model = SPPO("TOLDPolicy", gym.make(env_id, **kwargs), shield=None, **TINY_SPPO)
+    assert model.termination_model is terminates
+    assert (model.policy.model.termination is not None) is terminates
+
+
+@pytest.mark.parametrize("given", [True, False])
+def test_termination_model_as_given(given: bool) -> None:
+    model = SPPO("TOLDPolicy", "sppo_sb3/SafetyHopperVelocity-v1", termination_model=given, shield=None, **TINY_SPPO)
+    assert model.termination_model is given and (model.policy.model.termination is not None) is given
+
+
+def test_termination_model_rejects_other_values() -> None:
+    with pytest.raises(ValueError, match="termination_model is True, False or"):
+        SPPO("TOLDPolicy", "SafePointCircle-v0", termination_model="yes", **TINY_SPPO)  # type: ignore[arg-type]
+
+
+def test_the_resolved_termination_model_is_saved(tmp_path: Path) -> None:
+    SPPO("TOLDPolicy", "sppo_sb3/SafetyHopperVelocity-v1", shield=None, **TINY_SPPO).save(tmp_path / "model")
+    standing = gym.make("sppo_sb3/SafetyHopperVelocity-v1", terminate_when_unhealthy=False)  # "auto" would say False
+    loaded = SPPO.load(tmp_path / "model", env=standing, custom_objects={"shield": None})
+    assert loaded.termination_model is True and loaded.policy.model.termination is not None
