@@ -201,11 +201,13 @@ class TimedRule(ShieldingRule):
 
 def bench_sppo(env_id: str, steps: int, seed: int = 0) -> dict[str, Any]:
     """Shielded SPPO training on ``env_id``: the shield's time per env step, violations and interventions."""
+    import torch as th
     from stable_baselines3.common.env_util import make_vec_env
 
     from sppo_sb3 import SPPO
     from sppo_sb3.zoo.hyperparams import constructor_kwargs
 
+    th.set_num_threads(1)  # as the benchmark's runs (--num-threads 1): two threads beside another job stall each other
     env = make_vec_env(env_id, n_envs=1, seed=seed)
     rule = TimedRule(task_rule(env_id, env))
     kwargs = constructor_kwargs(ROOT / "hyperparams" / "navigation" / "sppo.yml", env_id)
