@@ -6,6 +6,7 @@ and prints one markdown row per run: the mean episode length and the reward per 
 A learner that stalls shows as flat blocks; one that falls early shows as short episodes.
 
     python scripts/probe_table.py results/velocity_probe --block 5000
+    python scripts/probe_table.py docs/benchmarks/velocity --block 20000 --runs sppo sppo-previous   # two grid rows
 """
 
 from __future__ import annotations
@@ -33,11 +34,14 @@ def run_row(run: Path, block: int) -> dict[str, object]:
     lengths, per_step = block_means(pd.read_csv(run / "curve.csv"), block, int(summary["steps"]))
     return {
         "task": summary["task"].split("/")[-1].removeprefix("Safety").removesuffix("Velocity-v1"),
-        "variant": summary.get("variant") or summary["algo"],
+        "run": run.parent.name,  # <algo>[-<variant>]: a folder renamed after its run (sppo-previous) says so
         "seed": summary["seed"],
         "ep. length per block": ", ".join(f"{x:.0f}" for x in lengths),
         "reward / step per block": ", ".join(f"{x:.2f}" for x in per_step),
         "return (last 10)": f"{summary['return_last_n']:.1f}",
+        "deployed, shielded / alone": " / ".join(
+            f"{summary[key]:.0f}" if summary.get(key) is not None else "–" for key in ("eval_return", "eval_unshielded_return")
+        ),
         "violations": f"{summary['cumulative_violations']}",
         "interventions": f"{summary.get('cumulative_interventions', '–')}",
         "steps/s": f"{summary['steps_per_s']:.0f}",
@@ -48,8 +52,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("out", type=Path, nargs="+", help="benchmark output folders (searched for DONE runs)")
     parser.add_argument("--block", type=int, default=5000, help="env steps per block (default: 5000)")
+    parser.add_argument("--runs", nargs="+", default=None, help="only these <algo>[-<variant>] folders (default: all)")
     args = parser.parse_args()
-    runs = sorted(done.parent for out in args.out for done in out.glob("*/*/seed_*/DONE"))
+    runs = sorted(
+        done.parent
+        for out in args.out
+        for done in out.glob("*/*/seed_*/DONE")
+        if args.runs is None or done.parent.parent.name in args.runs
+    )
     if not runs:
         raise SystemExit(f"no finished runs (…/seed_*/DONE) under {', '.join(map(str, args.out))}")
     rows = [run_row(run, args.block) for run in runs]
