@@ -6,7 +6,8 @@ observation must begin with ``[qpos[k:], qvel]`` for some ``k`` (the standard lo
 ``k`` position coordinates, ``x`` and maybe ``y``, which do not change the dynamics of a robot on flat ground). Where it
 does not, the layout says so at construction. :class:`StateConstraint` is the unsafe set: a predicate and a shaped
 distance (eq. 18) of each env step, computed from the physics states before and after it and, optionally, from
-sensors it adds to the model.
+sensors it adds to the model. :class:`EpisodeEnd` is where the task ends an episode on its own (a fall): no cost is
+paid after it.
 """
 
 from __future__ import annotations
@@ -78,6 +79,82 @@ class StateConstraint(ABC):
 
 
 @dataclass(frozen=True)
+class EpisodeEnd:
+    """Where a gymnasium locomotion task ends its episode on its own: ``terminate_when_unhealthy`` outside its healthy
+    ranges (Hopper, Walker2d, Ant, Humanoid). A rolled step that ends the episode is the last one that can cost.
+
+    The ranges are read from the env (:meth:`of`) and checked against the env's own ``is_healthy`` on probe states.
+    They are taken as closed intervals, where gymnasium's are mostly open: at the boundary the rollout goes on
+    counting costs, so the shield never stops counting where the env would not stop (fail closed).
+
+    :param z_index: the ``qpos`` index of the height (1: a planar robot's ``rootz``; 2: a free joint's ``z``).
+    :param z_range: the healthy height.
+    :param angle_range: the healthy pitch ``qpos[2]`` of a planar robot (Hopper, Walker2d), or ``None``.
+    :param state_range: the healthy range of every entry of ``[qpos, qvel][2:]`` (Hopper), or ``None``.
+    """
+
+    z_index: int
+    z_range: tuple[float, float]
+    angle_range: tuple[float, float] | None = None
+    state_range: tuple[float, float] | None = None
+
+    @classmethod
+    def of(cls, env: Any, probes: int = 256) -> EpisodeEnd | None:
+        """The episode end of a gymnasium MuJoCo env (``env.unwrapped``); ``None`` where it ends none on its own.
+
+        :raises ValueError: the env terminates when unhealthy, but not where these ranges say (its ``is_healthy`` is
+            not gymnasium's locomotion rule): a shield that stopped counting costs there could fail open.
+        """
+        if not getattr(env, "_terminate_when_unhealthy", False):
+            return None
+        free = env.model.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
+        end = cls(
+            2 if free else 1,
+            _interval(env._healthy_z_range),
+            None if free else _interval(getattr(env, "_healthy_angle_range", None)),
+            _interval(getattr(env, "_healthy_state_range", None)),
+        )
+        end.check_against(env, probes)
+        return end
+
+    def ended(self, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
+        """``(...)`` booleans: the states ``qpos (..., nq)``, ``qvel (..., nv)`` end the episode."""
+        outside = _outside(qpos[..., self.z_index], self.z_range)
+        if self.angle_range is not None:
+            outside |= _outside(qpos[..., 2], self.angle_range)
+        if self.state_range is not None:
+            outside |= _outside(np.concatenate([qpos, qvel], axis=-1)[..., 2:], self.state_range).any(axis=-1)
+        finite = np.isfinite(qpos).all(axis=-1) & np.isfinite(qvel).all(axis=-1)
+        return outside & finite
+
+    def check_against(self, env: Any, probes: int) -> None:
+        """Compare :meth:`ended` with the env's ``is_healthy`` on states scattered around its initial state."""
+        qpos, qvel = env.data.qpos.copy(), env.data.qvel.copy()
+        rng = np.random.default_rng(0)
+        try:
+            for _ in range(probes):
+                probe_qpos = env.init_qpos + rng.normal(0.0, 0.5, env.model.nq)
+                probe_qvel = rng.normal(0.0, 5.0, env.model.nv)
+                env.set_state(probe_qpos, probe_qvel)
+                if bool(self.ended(env.data.qpos, env.data.qvel)) and bool(env.is_healthy):
+                    raise ValueError(
+                        f"{type(env).__name__} terminates when unhealthy, but not where gymnasium's locomotion ranges "
+                        f"say (qpos {env.data.qpos.tolist()} is healthy to the env): the shield cannot tell where its "
+                        "episodes end. Pass terminate_when_unhealthy=False, or subclass MujocoShieldingRule."
+                    )
+        finally:
+            env.set_state(qpos, qvel)
+
+
+def _interval(bounds: Any) -> tuple[float, float] | None:
+    return None if bounds is None else (float(bounds[0]), float(bounds[1]))
+
+
+def _outside(values: np.ndarray, bounds: tuple[float, float]) -> np.ndarray:
+    return (values < bounds[0]) | (values > bounds[1])
+
+
+@dataclass(frozen=True)
 class MujocoLayout:
     """A gymnasium MuJoCo task as its shield sees it.
 
@@ -91,6 +168,7 @@ class MujocoLayout:
         ``None``. An observation with a velocity at the bound does not say the state: :meth:`known_states` is False.
     :param env_id: the env's gymnasium id, where known: a rule unpickled where ``xml_path`` does not exist (another
         installation) finds the model through it.
+    :param episode_end: where the env ends an episode on its own (:class:`EpisodeEnd`), or ``None``.
     """
 
     xml_path: str
@@ -101,6 +179,7 @@ class MujocoLayout:
     obs_dim: int
     velocity_clip: float | None = None
     env_id: str | None = None
+    episode_end: EpisodeEnd | None = None
 
     @classmethod
     def of(cls, env: gym.Env | str, **env_kwargs: Any) -> MujocoLayout:
@@ -130,7 +209,8 @@ class MujocoLayout:
                 )
             clip = _observed_velocity_clip(inner, k)
             env_id = made.spec.id if made.spec is not None else None
-            return cls(inner.fullpath, int(inner.frame_skip), k, model.nq, model.nv, obs.size, clip, env_id)
+            end = EpisodeEnd.of(inner)
+            return cls(inner.fullpath, int(inner.frame_skip), k, model.nq, model.nv, obs.size, clip, env_id, end)
         finally:
             if isinstance(env, str):
                 made.close()

@@ -37,7 +37,10 @@ class MujocoShieldingRule(ShieldingRule):
     Costs: along a rollout ``s_0 = s, s_1, ...`` (env steps of ``frame_skip`` physics steps), the discounted shaped cost
     ``J = Σ_{t<H} γ^(t+1) ĉ_(t+1)`` with ``ĉ`` of eq. 18 on the constraint's distance after each step. The unsafe set
     is absorbing: at the first step ``t`` that the constraint calls unsafe the rest of the sum is replaced by
-    ``γ^(t+1) / (1 - γ)`` (``ĉ = 1`` forever), as in the Point rule. Every ``J`` is ``>= 0``.
+    ``γ^(t+1) / (1 - γ)`` (``ĉ = 1`` forever), as in the Point rule. Where the task ends its episodes on its own
+    (:class:`~sppo_sb3.shield.mujoco.model.EpisodeEnd`: a fall), the sum stops after the step that ends the episode: a
+    fallen robot's sliding costs nothing in the env, and counting it would make every plan look as bad as a violation,
+    so that ``Ā ≈ 0`` and the shield let proposals through. Every ``J`` is ``>= 0``.
 
     The MPC from a state ``s`` (optionally after a fixed first action) around a nominal plan ``W``: one MPPI iteration
     over ``N`` particles ``clip(W + σ·ε_i)`` (``ε_0 = 0``: particle 0 is ``W`` itself), each scored by ``J``;
@@ -189,7 +192,7 @@ class MujocoShieldingRule(ShieldingRule):
         outputs = {}
         if self.model.nsensordata:
             outputs["sensordata"] = np.empty((len(ctrl), ctrl.shape[1], self.model.nsensordata))
-        if self.constraint.uses_states:
+        if self.constraint.uses_states or self.layout.episode_end is not None:
             outputs["state"] = np.empty((len(ctrl), ctrl.shape[1], states.shape[1]))
         self._rollout(states, ctrl, **outputs)
         m, t = controls.shape[:2]
@@ -219,11 +222,15 @@ class MujocoShieldingRule(ShieldingRule):
         :return: ``(...)`` discounted costs, ``>= 0``.
         """
         unsafe = np.asarray(self.constraint.is_unsafe(steps), dtype=bool)
-        before_violation = (np.cumsum(unsafe, axis=-1) - unsafe) == 0  # no violation strictly before t
+        counted = (np.cumsum(unsafe, axis=-1) - unsafe) == 0  # no violation strictly before t
+        end = self.layout.episode_end
+        if end is not None:  # nothing costs after the step that ends the episode (a fall)
+            ended = end.ended(steps.qpos(steps.after), steps.qvel(steps.after))
+            counted &= (np.cumsum(ended, axis=-1) - ended) == 0
         discount = self.gamma ** np.arange(1, unsafe.shape[-1] + 1)
         cost = shaped_cost(self.constraint.distance(steps), self.alpha)
         step = np.where(unsafe, discount / (1.0 - self.gamma), cost * discount)
-        return np.sum(np.where(before_violation, step, 0.0), axis=-1)
+        return np.sum(np.where(counted, step, 0.0), axis=-1)
 
     def plan_costs(self, states: np.ndarray, plans: np.ndarray, first_action: np.ndarray | None = None) -> np.ndarray:
         """``J`` of each rollout "``first_action`` (if given), then ``plans``" from ``states``.

@@ -13,14 +13,16 @@ shaped-cost band ``α`` is the margin that covers it (see ``docs/guide/custom_ta
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
+import gymnasium as gym
 import mujoco
 import numpy as np
 
 from sppo_sb3.envs.velocity import VelocityTask, velocity_distance_to_unsafe, velocity_is_unsafe
-from sppo_sb3.shield.mujoco.model import ConstraintSteps, StateConstraint
+from sppo_sb3.shield.mujoco.model import ConstraintSteps, MujocoLayout, StateConstraint
 from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule
 
 #: where each velocity task measures its robot, when not at the root's ``qpos``
@@ -94,11 +96,31 @@ def velocity_constraint(task: VelocityTask) -> VelocityConstraint:
     return VelocityConstraint(task.threshold, planar=task.planar, **MEASURED_AT.get(task.robot, {}))
 
 
+#: the least time ahead the registered velocity rules look (``horizon`` = this many seconds, and at least 15 steps). A
+#: Walker2d that starts to fall forward crosses its velocity threshold about 0.2 s later, where 15 of its 8 ms steps
+#: (0.12 s) saw it too late for the backup to catch it (docs/guide/tasks.md: "Falls and the velocity shield").
+LOOKAHEAD_SECONDS = 0.24
+
+
+def velocity_horizon(dt: float, lookahead: float = LOOKAHEAD_SECONDS, least: int = 15) -> int:
+    """The MPC horizon, in env steps of ``dt`` seconds, that looks ``lookahead`` seconds ahead (at least ``least``)."""
+    return max(least, math.ceil(lookahead / dt - 1e-9))
+
+
 def velocity_shielding_rule(task: VelocityTask, alpha: float, **kwargs: Any) -> MujocoShieldingRule:
     """The registered rule of a velocity task: :class:`MujocoShieldingRule` on the task's own model.
+
+    Its horizon looks :data:`LOOKAHEAD_SECONDS` ahead (:func:`velocity_horizon`): 30 steps on Hopper and Walker2d
+    (8 ms steps), 16 on Humanoid, 15 on the others.
 
     :param task: the task.
     :param alpha: the env's shaped-cost band (its ``alpha``, which the registry passes).
     :param kwargs: further settings of :class:`MujocoShieldingRule` (``eta``, ``horizon``, ...).
     """
-    return MujocoShieldingRule(task.env_id, velocity_constraint(task), alpha=alpha, **kwargs)
+    env = gym.make(task.env_id)
+    try:
+        layout = MujocoLayout.of(env)
+        kwargs.setdefault("horizon", velocity_horizon(float(env.unwrapped.dt)))
+    finally:
+        env.close()
+    return MujocoShieldingRule(layout, velocity_constraint(task), alpha=alpha, **kwargs)
