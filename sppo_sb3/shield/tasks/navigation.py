@@ -151,7 +151,7 @@ class NavigationLayout(MujocoLayout):
         model = shield_model(definition)
         env_id = f"sppo_sb3/Safety{robot}{task}{level}-v0"
         obs_dim = SafetyNavigationEnv(robot, task, level).observation_space.shape[0]  # type: ignore[index]
-        return cls("", FRAME_SKIP, 0, model.nq, model.nv, obs_dim, None, env_id, robot, task, level)
+        return cls("", FRAME_SKIP, 0, model.nq, model.nv, obs_dim, None, env_id, robot=robot, task=task, level=level)
 
     @property
     def state_obs_dim(self) -> int:
