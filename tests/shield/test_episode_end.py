@@ -13,6 +13,7 @@ from gymnasium.envs.mujoco.walker2d_v4 import Walker2dEnv
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.shield import MujocoShieldingRule, StateConstraint
+from sppo_sb3.shield.analysis.replay import replay_proposals
 from sppo_sb3.shield.mujoco.model import ConstraintSteps, EpisodeEnd, MujocoLayout
 from sppo_sb3.shield.registry import default_shielding_rule
 
@@ -84,33 +85,13 @@ def test_no_cost_is_counted_after_the_step_that_ends_the_episode() -> None:
 
 
 def replay_walker2d_fall(rule: MujocoShieldingRule) -> tuple[int, int]:
-    """Replay the proposals of the falling episode of Walker2d seed 0 (velocity grid, the settings before the episode
-    end and the 0.24 s lookahead) through ``rule``, from the recorded state; the rule reads the env's state (the
-    episode starts mid-fall, with velocities beyond the observation's clip). Returns (violations, interventions)."""
+    """The falling episode of Walker2d seed 0 (velocity grid, the rule before the episode end and the 0.24 s
+    lookahead), replayed through ``rule`` from the recorded state. Returns (violations, interventions)."""
     recorded = np.load(DATA / "walker2d_fall.npz")
-    env = gym.make("sppo_sb3/SafetyWalker2dVelocity-v1")
-    env.reset(seed=0)
-    sim = env.unwrapped
-    sim.set_state(recorded["qpos"], recorded["qvel"])
-    obs = sim._get_obs()
-    nq, nv = rule.model.nq, rule.model.nv
-
-    def env_state(observations: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        states = rule.layout.states_from_obs(rule.model, observations)
-        states[:, 2 : 1 + nq], states[:, 1 + nq : 1 + nq + nv] = sim.data.qpos[1:], sim.data.qvel
-        warm, used, _ = rule.warm_starts.lookup(rule._state_obs(observations))
-        return states, np.ones(len(observations), dtype=bool), warm, used
-
-    rule.tracked_states = env_state  # type: ignore[method-assign]
-    violations = interventions = 0
-    for proposal in recorded["proposals"]:
-        decision = rule.shield(obs[None], proposal[None])
-        obs, _, terminated, _, info = env.step(decision.actions[0])
-        violations += int(info["cost"] > 0)
-        interventions += int(decision.intervened[0])
-        if terminated:
-            break
-    return violations, interventions
+    replay = replay_proposals(
+        rule, "sppo_sb3/SafetyWalker2dVelocity-v1", recorded["qpos"], recorded["qvel"], recorded["proposals"]
+    )
+    return replay.violations, replay.interventions
 
 
 def test_the_fall_of_walker2d_seed_0_is_shielded() -> None:
