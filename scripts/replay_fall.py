@@ -34,6 +34,7 @@ def main() -> None:
     args = parser.parse_args()
     recorded = np.load(args.fixture)
     registered = default_shielding_rule(ENV_ID, gym.make(ENV_ID))
+    assert isinstance(registered, MujocoShieldingRule)  # the velocity tasks' registered rule
     print(f"registered rule: horizon {registered.horizon}; {len(recorded['proposals'])} recorded proposals\n")
     print("| horizon | episode end | violations | interventions | steps until the fall |")
     print("|---|---|---|---|---|")

@@ -203,7 +203,6 @@ def test_velocity_preset_runs_its_grid_from_its_own_folder(capsys: pytest.Captur
     assert "separate grids" in capsys.readouterr().err
 
 
-
 def test_navigation_preset_runs_its_grid_from_its_own_folder() -> None:
     """``--navigation``: the same algorithms on PointGoal1, CarGoal1 and PointButton1, from hyperparams/navigation,
     every pair configured at the suite's budget, SPPO shielded by the task's rule."""
@@ -215,6 +214,7 @@ def test_navigation_preset_runs_its_grid_from_its_own_folder() -> None:
         entry = yaml.safe_load(spec.config_text or "")[spec.task]
         assert entry["n_timesteps"] == 1e5, spec.label
         assert ("shield" in entry) == (spec.algo == "sppo"), spec.label
+
 
 def test_scripts_are_thin_command_lines_over_the_module(tmp_path: Path) -> None:
     """``python scripts/benchmark.py`` keeps its flags, presets and output; its default config folder is the repo's."""

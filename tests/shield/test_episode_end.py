@@ -39,7 +39,7 @@ def test_ended_is_where_the_env_terminates(env_id: str) -> None:
     terminations = 0
     for _ in range(400):
         _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-        data = env.unwrapped.data
+        data = env.unwrapped.data  # type: ignore[attr-defined]
         assert bool(end.ended(data.qpos, data.qvel)) == terminated
         terminations += int(terminated)
         if terminated or truncated:
@@ -97,6 +97,7 @@ def replay_walker2d_fall(rule: MujocoShieldingRule) -> tuple[int, int]:
 def test_the_fall_of_walker2d_seed_0_is_shielded() -> None:
     env_id = "sppo_sb3/SafetyWalker2dVelocity-v1"
     rule = default_shielding_rule(env_id, gym.make(env_id))
+    assert isinstance(rule, MujocoShieldingRule)
     assert rule.horizon == 30 and rule.layout.episode_end is not None
     violations, interventions = replay_walker2d_fall(rule)
     assert violations == 0 and interventions > 0

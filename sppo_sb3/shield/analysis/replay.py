@@ -51,7 +51,7 @@ def replay_proposals(
         return states, np.ones(len(observations), dtype=bool), warm, used
 
     tracked_states = rule.tracked_states
-    rule.tracked_states = env_states  # type: ignore[method-assign]
+    rule.tracked_states = env_states  # type: ignore[method-assign,assignment]
     violations = interventions = steps = 0
     terminated = False
     try:

@@ -108,9 +108,12 @@ class EpisodeEnd:
         if not getattr(env, "_terminate_when_unhealthy", False):
             return None
         free = env.model.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
+        z_range = _interval(env._healthy_z_range)
+        if z_range is None:
+            raise ValueError(f"{type(env).__name__} terminates when unhealthy but has no healthy height range")
         end = cls(
             2 if free else 1,
-            _interval(env._healthy_z_range),
+            z_range,
             None if free else _interval(getattr(env, "_healthy_angle_range", None)),
             _interval(getattr(env, "_healthy_state_range", None)),
         )

@@ -120,7 +120,7 @@ def velocity_shielding_rule(task: VelocityTask, alpha: float, **kwargs: Any) -> 
     env = gym.make(task.env_id)
     try:
         layout = MujocoLayout.of(env)
-        kwargs.setdefault("horizon", velocity_horizon(float(env.unwrapped.dt)))
+        kwargs.setdefault("horizon", velocity_horizon(float(env.unwrapped.dt)))  # type: ignore[attr-defined]
     finally:
         env.close()
     return MujocoShieldingRule(layout, velocity_constraint(task), alpha=alpha, **kwargs)
