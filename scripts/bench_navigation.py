@@ -6,9 +6,11 @@
   same run; reported: the best of each and their ratios (a machine's speed cancels out of them). Without the venv
   this part is skipped, saying how to make it.
 - ``shield``: ``ShieldWrapper`` with the task's registered rule, driven by three kinds of proposals: ``goal`` (steer
-  to the goal, through anything in the way: what an unsafe learner does), ``random`` and ``adversarial`` (steer into
-  the nearest hazard, vase or pillar). Reported: ms per env step of the whole shielded step and of the env alone, the
-  95th percentile, the share of steps that solved ``Q̄(s, a)``, interventions, and the cost paid (0: the shield held).
+  to the goal, through anything in the way: what an unsafe learner does), ``route`` (head for the goal around the
+  hazards, vases and pillars: a driver that plans), ``random`` and ``adversarial`` (steer into the nearest hazard,
+  vase or pillar). Reported: ms per env step of the whole shielded step and of the env alone, the 95th percentile, the
+  share of steps that solved ``Q̄(s, a)``, interventions, the cost paid (0: the shield held) and the goals reached;
+  then the goals and cost of the same proposals without the shield (does the shield leave the task solvable?).
   The goal-seeking and adversarial proposals push against the shield on most steps, so it solves on most steps;
 - ``sppo``: SPPO training (``hyperparams/navigation/sppo.yml``) for ``--sppo-steps`` with the task's rule, timed
   inside the run: the shield's ms per env step where the learner proposes (it learns to stop pushing against the
@@ -120,14 +122,40 @@ def steer(env: SafetyNavigationEnv, target: np.ndarray) -> np.ndarray:
     return np.clip(np.array([1.0 + turn, 1.0 - turn]), -1, 1)
 
 
+def constrained_positions(env: SafetyNavigationEnv) -> np.ndarray:
+    """``(n, 2)``: where the hazards, vases and pillars are."""
+    return env.world.body_xpos([name for name in env.layout if name.startswith(("hazard", "vase", "pillar"))])[:, :2]
+
+
+def route(env: SafetyNavigationEnv, clearance: float = 0.35, reach: float = 0.6) -> np.ndarray:
+    """Head for the goal along the free direction nearest to it: the first of 32 headings whose next ``reach`` metres
+    pass no hazard, vase or pillar closer than ``clearance`` (a driver that plans, unlike ``goal``); the Point turns on
+    the spot before it drives."""
+    me, goal = env.world.agent_xpos()[:2], env.world.body_xpos(("goal",))[0, :2]
+    headings = np.linspace(-np.pi, np.pi, 32, endpoint=False)
+    directions = np.stack([np.cos(headings), np.sin(headings)], axis=1)
+    paths = me + np.linspace(0.0, reach, 13)[None, :, None] * directions[:, None]  # (32, 13, 2)
+    objects = constrained_positions(env)
+    nearest = np.linalg.norm(paths[:, :, None] - objects[None, None], axis=-1).min(axis=(1, 2)) if len(objects) else np.inf
+    to_goal = np.arctan2(*(goal - me)[::-1])
+    score = np.cos(headings - to_goal) - 10.0 * (nearest < clearance)
+    target = me + directions[np.argmax(score)]
+    if env.world.robot.name != "Point":
+        return steer(env, target)
+    ego_x, ego_y = (np.r_[target - me, 0.0] @ env.world.agent_xmat())[:2]
+    bearing = float(np.arctan2(ego_y, ego_x))
+    return np.array([float(abs(bearing) < 0.5), float(np.clip(3 * bearing, -1, 1))])
+
+
 def proposal(kind: str, env: SafetyNavigationEnv, rng: np.random.Generator) -> np.ndarray:
     """A proposed action of the given ``kind`` (see the module)."""
     if kind == "random":
         return rng.uniform(-1, 1, 2)
     if kind == "goal":
         return steer(env, env.world.body_xpos(("goal",))[0, :2])
-    names = [name for name in env.layout if name.startswith(("hazard", "vase", "pillar"))]
-    positions = env.world.body_xpos(names)[:, :2]
+    if kind == "route":
+        return route(env)
+    positions = constrained_positions(env)
     return steer(env, positions[np.argmin(np.linalg.norm(positions - env.world.agent_xpos()[:2], axis=1))])
 
 
@@ -148,7 +176,7 @@ def bench_shield(env_id: str, kind: str, steps: int) -> dict[str, Any]:
     shielded.reset(seed=0)
     shielded.step(np.zeros(2))  # the first step checks the rule on the action space: not timed
     rng = np.random.default_rng(0)
-    times, env_times, cost, interventions = [], [], 0.0, 0
+    times, env_times, cost, interventions, goals, goals_alone, cost_alone = [], [], 0.0, 0, 0, 0, 0.0
     for _ in range(steps):
         action = proposal(kind, inner, rng)
         start = time.perf_counter()
@@ -156,13 +184,18 @@ def bench_shield(env_id: str, kind: str, steps: int) -> dict[str, Any]:
         times.append(time.perf_counter() - start)
         cost += info["cost"]
         interventions += info["shield_intervened"]
+        goals += bool(info.get("goal_met", False))
         if terminated or truncated:
             shielded.reset()
     inner.reset(seed=0)
-    for _ in range(min(steps, 1000)):  # the env alone, for scale
+    for _ in range(steps):  # the env alone: its time, for scale, and what the same proposals reach without the shield
         start = time.perf_counter()
-        inner.step(proposal(kind, inner, rng))
+        _, _, terminated, truncated, info = inner.step(proposal(kind, inner, rng))
         env_times.append(time.perf_counter() - start)
+        cost_alone += info["cost"]
+        goals_alone += bool(info.get("goal_met", False))
+        if terminated or truncated:
+            inner.reset()
     ms = 1e3 * np.asarray(times)
     return {
         "task": env_id,
@@ -174,6 +207,9 @@ def bench_shield(env_id: str, kind: str, steps: int) -> dict[str, Any]:
         "Q̄(s,a) solved": rule.solve_counts.q_solves / max(rule.solve_counts.steps, 1),
         "interventions": interventions,
         "cost": cost,
+        "goals": goals,
+        "alone: goals": goals_alone,
+        "alone: cost": cost_alone,
     }
 
 
@@ -239,7 +275,10 @@ def main() -> None:
     parser.add_argument("--sg-python", type=Path, default=SG_PYTHON, help="Python of a venv with safety-gymnasium==1.0.0")
     parser.add_argument("--shield-steps", type=int, default=1000, help="shielded env steps per proposal kind")
     parser.add_argument(
-        "--proposals", nargs="+", default=["goal", "random", "adversarial"], choices=["goal", "random", "adversarial"]
+        "--proposals",
+        nargs="+",
+        default=["goal", "route", "random", "adversarial"],
+        choices=["goal", "route", "random", "adversarial"],
     )
     parser.add_argument("--sppo-steps", type=int, default=20_000, help="SPPO training steps per task")
     parser.add_argument("--skip", nargs="*", default=[], choices=["speed", "shield", "sppo"], help="parts to skip")
