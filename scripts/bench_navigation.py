@@ -127,7 +127,7 @@ def constrained_positions(env: SafetyNavigationEnv) -> np.ndarray:
     return env.world.body_xpos([name for name in env.layout if name.startswith(("hazard", "vase", "pillar"))])[:, :2]
 
 
-def route(env: SafetyNavigationEnv, clearance: float = 0.35, reach: float = 0.6) -> np.ndarray:
+def route(env: SafetyNavigationEnv, clearance: float = 0.5, reach: float = 0.6) -> np.ndarray:
     """Head for the goal along the free direction nearest to it: the first of 32 headings whose next ``reach`` metres
     pass no hazard, vase or pillar closer than ``clearance`` (a driver that plans, unlike ``goal``); the Point turns on
     the spot before it drives."""
