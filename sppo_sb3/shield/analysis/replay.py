@@ -26,8 +26,9 @@ def replay_proposals(
     """Shield each of ``proposals`` with ``rule`` and step ``env_id`` (from the state ``qpos, qvel``) with the decision,
     until the proposals or the episode end.
 
-    The rule reads the env's physics state at every step instead of rebuilding it from the observation: a recorded
-    state may start mid-fall, with velocities beyond what the observation keeps (gymnasium's MuJoCo envs clip them).
+    The rule is handed the recorded state once, as the prediction it keeps for the first observation (a recorded
+    state may start mid-fall, with velocities beyond what the observation keeps: gymnasium's MuJoCo envs clip them);
+    from there it tracks the states itself, as it does in training.
 
     :param rule: a rule whose model is the env's (``rule.layout`` of ``env_id``).
     :param env_id: the task the proposals were recorded on.
@@ -40,18 +41,9 @@ def replay_proposals(
     sim = env.unwrapped
     sim.set_state(qpos, qvel)  # type: ignore[attr-defined]
     obs = sim._get_obs()  # type: ignore[attr-defined]
-    nq, nv = rule.model.nq, rule.model.nv
-
-    def env_states(observations: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        states = rule.layout.states_from_obs(rule.model, observations)  # [time, qpos, qvel, ...]
-        k = rule.layout.excluded_positions  # left as the observation puts them: the rule's costs do not read them
-        states[:, 1 + k : 1 + nq] = sim.data.qpos[k:]  # type: ignore[attr-defined]
-        states[:, 1 + nq : 1 + nq + nv] = sim.data.qvel  # type: ignore[attr-defined]
-        warm, used, _ = rule.warm_starts.lookup(rule._state_obs(observations))
-        return states, np.ones(len(observations), dtype=bool), warm, used
-
-    tracked_states = rule.tracked_states
-    rule.tracked_states = env_states  # type: ignore[method-assign,assignment]
+    state = rule.layout.states_from_obs(rule.model, obs[None])  # [time, qpos, qvel, ...]
+    state[0, 1 : 1 + rule.model.nq], state[0, 1 + rule.model.nq : 1 + rule.model.nq + rule.model.nv] = qpos, qvel
+    rule.warm_starts.replace(np.array([-1]), rule._state_obs(obs[None]), np.zeros((1, rule.horizon, rule.model.nu)), state)
     violations = interventions = steps = 0
     terminated = False
     try:
@@ -64,6 +56,5 @@ def replay_proposals(
             if terminated:
                 break
     finally:
-        rule.tracked_states = tracked_states  # type: ignore[method-assign]
         env.close()
     return Replay(violations, interventions, steps, terminated)
