@@ -56,6 +56,7 @@ def test_the_shield_state_predicts_the_env_step() -> None:
         ("sppo_sb3/SafetyPointGoal1-v0", "hazard"),
         ("sppo_sb3/SafetyCarGoal1-v0", "hazard"),
         ("sppo_sb3/SafetyPointGoal2-v0", "vase"),
+        ("sppo_sb3/SafetyCarGoal2-v0", "vase"),
         ("sppo_sb3/SafetyPointPush2-v0", "pillar"),
     ],
 )

@@ -8,6 +8,7 @@ the rule is the physics; certificates (see the class) spare most solves. The con
 from __future__ import annotations
 
 import copy
+import math
 import os
 from typing import Any
 
@@ -25,6 +26,14 @@ from sppo_sb3.shield.mujoco.warm_starts import WarmStarts
 #: certificate candidates rolled per call (:meth:`MujocoShieldingRule.certify_in_chunks`): a few for the threads, and
 #: few to waste past the first certificate
 CERTIFICATE_CHUNK = 4
+
+
+def lookahead_horizon(dt: float, seconds: float, least: int = 2) -> int:
+    """The MPC horizon, in env steps of ``dt`` seconds, that looks ``seconds`` ahead (at least ``least`` steps).
+
+    A rule's horizon is a time: long enough for the backup to stop what the task's robot can start in that time.
+    """
+    return max(least, math.ceil(seconds / dt - 1e-9))
 
 
 class MujocoShieldingRule(ShieldingRule):

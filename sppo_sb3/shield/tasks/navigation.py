@@ -37,7 +37,12 @@ from sppo_sb3.envs.navigation.tasks import TASKS, NavigationTask
 from sppo_sb3.envs.navigation.world import FRAME_SKIP, world_xml
 from sppo_sb3.shield.base import ShieldFailure
 from sppo_sb3.shield.mujoco.model import FULL_STATE, ConstraintSteps, MujocoLayout, StateConstraint
-from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule
+from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule, lookahead_horizon
+
+#: how far ahead the navigation rules look, one time for both robots: 15 of the Point's 20 ms steps (the horizon its
+#: rule was first validated with), 8 of the Car's 40 ms steps, over the Car's braking from top speed (0.77 m/s, 0.2 s)
+#: with margin, and at half the cost of 15 (docs/guide/tasks.md: "The navigation shield").
+LOOKAHEAD_SECONDS = 0.3
 
 
 def navigation_task(robot: str, task: str, level: int) -> NavigationTask:
@@ -217,7 +222,8 @@ class NavigationShieldingRule(MujocoShieldingRule):
     :param level: 0, 1 or 2.
     :param alpha: the shaped cost's band of eq. 18, in metres (the env's ``alpha``).
     :param n_particles: MPPI particles per solve (half :class:`MujocoShieldingRule`'s: the robots have two controls).
-    :param kwargs: further settings of :class:`MujocoShieldingRule` (``horizon``, ``eta``, ...).
+    :param horizon: ``H_m`` in env steps (``None``: :data:`LOOKAHEAD_SECONDS` of the robot's steps).
+    :param kwargs: further settings of :class:`MujocoShieldingRule` (``eta``, ``noise_std``, ...).
     """
 
     def __init__(
@@ -227,14 +233,17 @@ class NavigationShieldingRule(MujocoShieldingRule):
         level: int = 1,
         alpha: float = 0.1,
         n_particles: int = 32,
+        horizon: int | None = None,
         **kwargs: Any,
     ) -> None:
         layout = NavigationLayout.of_task(robot, task, level)
         definition = navigation_task(robot, task, level)
+        if horizon is None:
+            horizon = lookahead_horizon(definition.robot.timestep * FRAME_SKIP, LOOKAHEAD_SECONDS)
         constraint = NavigationConstraint.of(definition, shield_model(definition))
         if constraint.empty:
             raise ValueError(f"{layout.env_id} constrains nothing the shield covers: it needs no shield (use shield=None).")
-        super().__init__(layout, constraint, alpha=alpha, n_particles=n_particles, **kwargs)
+        super().__init__(layout, constraint, horizon=horizon, alpha=alpha, n_particles=n_particles, **kwargs)
         self._physics = physics_size(self.model)
 
     def _rollout(self, states: np.ndarray, ctrl: np.ndarray, **outputs: np.ndarray) -> None:

@@ -13,7 +13,6 @@ shaped-cost band ``α`` is the margin that covers it (see ``docs/guide/custom_ta
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,7 +22,7 @@ import numpy as np
 
 from sppo_sb3.envs.velocity import VelocityTask, velocity_distance_to_unsafe, velocity_is_unsafe
 from sppo_sb3.shield.mujoco.model import ConstraintSteps, MujocoLayout, StateConstraint
-from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule
+from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule, lookahead_horizon
 
 #: where each velocity task measures its robot, when not at the root's ``qpos``
 MEASURED_AT: dict[str, dict[str, Any]] = {"Ant": {"body": "torso"}, "Humanoid": {"mass_centre": True}}
@@ -102,16 +101,11 @@ def velocity_constraint(task: VelocityTask) -> VelocityConstraint:
 LOOKAHEAD_SECONDS = 0.24
 
 
-def velocity_horizon(dt: float, lookahead: float = LOOKAHEAD_SECONDS, least: int = 15) -> int:
-    """The MPC horizon, in env steps of ``dt`` seconds, that looks ``lookahead`` seconds ahead (at least ``least``)."""
-    return max(least, math.ceil(lookahead / dt - 1e-9))
-
-
 def velocity_shielding_rule(task: VelocityTask, alpha: float, **kwargs: Any) -> MujocoShieldingRule:
     """The registered rule of a velocity task: :class:`MujocoShieldingRule` on the task's own model.
 
-    Its horizon looks :data:`LOOKAHEAD_SECONDS` ahead (:func:`velocity_horizon`): 30 steps on Hopper and Walker2d
-    (8 ms steps), 16 on Humanoid, 15 on the others.
+    Its horizon looks :data:`LOOKAHEAD_SECONDS` ahead (:func:`lookahead_horizon`, at least 15 steps): 30 steps on
+    Hopper and Walker2d (8 ms steps), 16 on Humanoid, 15 on the others.
 
     :param task: the task.
     :param alpha: the env's shaped-cost band (its ``alpha``, which the registry passes).
@@ -120,7 +114,7 @@ def velocity_shielding_rule(task: VelocityTask, alpha: float, **kwargs: Any) -> 
     env = gym.make(task.env_id)
     try:
         layout = MujocoLayout.of(env)
-        kwargs.setdefault("horizon", velocity_horizon(float(env.unwrapped.dt)))  # type: ignore[attr-defined]
+        kwargs.setdefault("horizon", lookahead_horizon(float(env.unwrapped.dt), LOOKAHEAD_SECONDS, least=15))  # type: ignore[attr-defined]
     finally:
         env.close()
     return MujocoShieldingRule(layout, velocity_constraint(task), alpha=alpha, **kwargs)
