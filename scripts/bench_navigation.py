@@ -41,7 +41,7 @@ import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.envs.navigation import SafetyNavigationEnv
 from sppo_sb3.shield import ShieldWrapper
 from sppo_sb3.shield.base import ShieldDecision, ShieldingRule
-from sppo_sb3.shield.registry import default_shielding_rule
+from sppo_sb3.shield.registry import SHIELDING_RULES, rule_parameters_of
 from sppo_sb3.shield.tasks.navigation import NavigationShieldingRule
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -159,9 +159,14 @@ def proposal(kind: str, env: SafetyNavigationEnv, rng: np.random.Generator) -> n
     return steer(env, positions[np.argmin(np.linalg.norm(positions - env.world.agent_xpos()[:2], axis=1))])
 
 
+#: settings of the rules under test beside the registered ones' (``--rule``)
+RULE_SETTINGS: dict[str, Any] = {}
+
+
 def task_rule(env_id: str, env: Any) -> NavigationShieldingRule:
-    """The rule registered for ``env_id``, built from ``env``'s parameters."""
-    rule = default_shielding_rule(env_id, env)
+    """The rule registered for ``env_id``, built from ``env``'s parameters, with :data:`RULE_SETTINGS` on top."""
+    factory = SHIELDING_RULES.get(env_id)
+    rule = factory(**{**rule_parameters_of(env_id, env), **RULE_SETTINGS}) if factory is not None else None
     if not isinstance(rule, NavigationShieldingRule):
         raise SystemExit(f"{env_id} has no navigation shield (level 0 constrains nothing)")
     return rule
@@ -200,6 +205,7 @@ def bench_shield(env_id: str, kind: str, steps: int) -> dict[str, Any]:
     return {
         "task": env_id,
         "proposals": kind,
+        "rule": " ".join(f"{name}={value}" for name, value in RULE_SETTINGS.items()) or "registered",
         "steps": steps,
         "ms/step": float(ms.mean()),
         "p95 ms": float(np.quantile(ms, 0.95)),
@@ -257,6 +263,23 @@ def bench_sppo(env_id: str, steps: int, seed: int = 0) -> dict[str, Any]:
             "interventions": int(model.safety_metrics.interventions)}  # fmt: skip
 
 
+def rule_settings(text: str) -> dict[str, Any]:
+    """``"alpha=0.05 horizon=8"`` as keyword arguments of the rule (numbers are parsed, the rest kept as text)."""
+    settings: dict[str, Any] = {}
+    for item in text.split():
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise SystemExit(f"--rule takes NAME=VALUE items, got {item!r}")
+        try:
+            settings[name] = int(value)
+        except ValueError:
+            try:
+                settings[name] = float(value)
+            except ValueError:
+                settings[name] = value
+    return settings
+
+
 def print_table(title: str, rows: list[dict[str, Any]]) -> None:
     print(f"\n{title}\n")
     print("| " + " | ".join(rows[0]) + " |")
@@ -282,8 +305,12 @@ def main() -> None:
     )
     parser.add_argument("--sppo-steps", type=int, default=20_000, help="SPPO training steps per task")
     parser.add_argument("--skip", nargs="*", default=[], choices=["speed", "shield", "sppo"], help="parts to skip")
+    parser.add_argument(
+        "--rule", type=str, default="", help='settings of the rules beside the registered ones, e.g. "alpha=0.05 eta=0.5"'
+    )
     parser.add_argument("--json", type=Path, default=None, help="also write the figures to this file")
     args = parser.parse_args()
+    RULE_SETTINGS.update(rule_settings(args.rule))
     figures: dict[str, list[dict[str, Any]]] = {}
     if "speed" not in args.skip:
         if args.sg_python.exists():
