@@ -3,9 +3,10 @@
 Every rl-zoo3 flag works unchanged (``--algo sppo --env SafePointCircle-v0 -conf hyperparams/sppo.yml``,
 ``-optimize``, ``--storage``, ...); without ``-conf``, the package's own hyperparameters are read (shipped in the wheel,
 :func:`sppo_sb3.zoo.hyperparams.default_config`). On top of the zoo (see :mod:`sppo_sb3.zoo`): ``monitor.csv`` has the
-columns ``episode_cost`` and ``episode_violations``, evaluations log ``eval/mean_cost``, the safety summary is printed
-at the end with a line of legend (:data:`EXTRA_HELP` explains its terms, ``docs/guide/cli.md`` every field of
-``safety_summary.json``), and two extra flags set the violation budget of hyperparameter search:
+columns ``episode_cost``, ``episode_violations`` and ``episode_interventions``, evaluations log ``eval/mean_cost``,
+the safety summary is printed at the end with a line of legend (:data:`EXTRA_HELP` explains its terms,
+``docs/guide/cli.md`` every field of ``safety_summary.json``), and two extra flags set the violation budget of
+hyperparameter search:
 
 ``--violation-budget B``  prune trials whose cumulative training violations exceed ``B`` (env: SPPO_VIOLATION_BUDGET)
 ``--violation-penalty P``  instead of pruning, objective = return - P * max(0, violations - B) (env: SPPO_VIOLATION_PENALTY)

@@ -29,8 +29,10 @@ ENV_REWARD_KEY = "env_reward"
 EPISODE_COST_INFO_KEY = "episode_cost"
 #: on the step that ends an episode: its steps with ``info["cost"] > 0`` (a ``monitor.csv`` column)
 EPISODE_VIOLATIONS_INFO_KEY = "episode_violations"
+#: on the step that ends an episode: its steps where a shield replaced the action (NaN: no shield reported any)
+EPISODE_INTERVENTIONS_INFO_KEY = "episode_interventions"
 #: the extra ``monitor.csv`` columns, as ``Monitor(info_keywords=...)`` takes them
-COST_INFO_KEYWORDS: tuple[str, str] = (EPISODE_COST_INFO_KEY, EPISODE_VIOLATIONS_INFO_KEY)
+COST_INFO_KEYWORDS: tuple[str, ...] = (EPISODE_COST_INFO_KEY, EPISODE_VIOLATIONS_INFO_KEY, EPISODE_INTERVENTIONS_INFO_KEY)
 
 # ---------------------------------------------------------------------------------------------- the SB3 logger
 #: prefix of the safety metrics of Section V-B (:class:`~sppo_sb3.common.safety.SafetyMetrics`)

@@ -1,9 +1,10 @@
 """Episode cost in the outputs that SB3 and rl-zoo3 already write: ``monitor.csv`` and the evaluation callback.
 
 - :class:`EpisodeCostInfo` (a gymnasium wrapper, placed *inside* SB3's ``Monitor``) adds the episode totals
-  ``episode_cost`` (sum of ``info["cost"]``) and ``episode_violations`` (steps with ``info["cost"] > 0``) to the info of
-  the step that ends an episode. ``Monitor(env, info_keywords=COST_INFO_KEYWORDS)`` then writes them as two extra
-  columns of ``monitor.csv`` and into ``info["episode"]``.
+  ``episode_cost`` (sum of ``info["cost"]``), ``episode_violations`` (steps with ``info["cost"] > 0``) and
+  ``episode_interventions`` (steps where a :class:`~sppo_sb3.shield.ShieldWrapper` replaced the action; NaN without
+  one) to the info of the step that ends an episode. ``Monitor(env, info_keywords=COST_INFO_KEYWORDS)`` then writes
+  them as extra columns of ``monitor.csv`` and into ``info["episode"]``.
 - :func:`cost_monitored_make_vec_env` is SB3's ``make_vec_env`` with that wrapper and those columns always added, and
   the user's ``wrapper_class`` inside ``Monitor``.
 - :class:`CostEvalCallback` is SB3's ``EvalCallback`` that also measures the evaluation episodes' cost: logged as
@@ -29,29 +30,33 @@ from sppo_sb3.common.keys import (
     COST_INFO_KEYWORDS,
     COST_KEY,
     EPISODE_COST_INFO_KEY,
+    EPISODE_INTERVENTIONS_INFO_KEY,
     EPISODE_VIOLATIONS_INFO_KEY,
     EVAL_MEAN_COST_LOG_KEY,
     EVAL_MEAN_VIOLATIONS_LOG_KEY,
     EVAL_SAFE_EPISODE_RATE_LOG_KEY,
+    INTERVENED_KEY,
 )
 
 
 class EpisodeCostInfo(gym.Wrapper):
-    """Adds the episode's ``episode_cost`` and ``episode_violations`` to the info of its last step.
+    """Adds the episode's ``episode_cost``, ``episode_violations`` and ``episode_interventions`` to the info of its last step.
 
     Wrap the env with it *before* ``Monitor`` (``Monitor(EpisodeCostInfo(env), info_keywords=COST_INFO_KEYWORDS)``):
     ``Monitor`` reads the info keywords at the step that ends the episode.
 
-    :param env: the env; its ``info["cost"]`` (absent: 0) is the violation indicator of the step.
+    :param env: the env; its ``info["cost"]`` (absent: 0) is the violation indicator of the step, and its
+        ``info["shield_intervened"]`` (absent: no shield) whether a shield replaced the action.
     """
 
     def __init__(self, env: gym.Env) -> None:
         super().__init__(env)
         self._cost = 0.0
         self._violations = 0
+        self._interventions: int | None = None
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
-        self._cost, self._violations = 0.0, 0
+        self._cost, self._violations, self._interventions = 0.0, 0, None
         return self.env.reset(**kwargs)
 
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
@@ -59,8 +64,16 @@ class EpisodeCostInfo(gym.Wrapper):
         cost = float(info.get(COST_KEY, 0.0))
         self._cost += cost
         self._violations += int(cost > 0)
+        if INTERVENED_KEY in info:
+            self._interventions = (self._interventions or 0) + int(bool(info[INTERVENED_KEY]))
         if terminated or truncated:
-            info = {**info, EPISODE_COST_INFO_KEY: self._cost, EPISODE_VIOLATIONS_INFO_KEY: self._violations}
+            interventions = float("nan") if self._interventions is None else float(self._interventions)
+            info = {
+                **info,
+                EPISODE_COST_INFO_KEY: self._cost,
+                EPISODE_VIOLATIONS_INFO_KEY: self._violations,
+                EPISODE_INTERVENTIONS_INFO_KEY: interventions,
+            }
         return obs, reward, terminated, truncated, info
 
 

@@ -23,7 +23,14 @@ from typing import Any
 from sppo_sb3.experiments import layout
 from sppo_sb3.experiments.provenance import run_provenance
 from sppo_sb3.experiments.spec import RunSpec
-from sppo_sb3.experiments.summary import final_model_path, model_safety_summary, model_timesteps, read_monitor_curve, summarize
+from sppo_sb3.experiments.summary import (
+    final_model_path,
+    model_safety_summary,
+    model_timesteps,
+    monitor_interventions,
+    read_monitor_curve,
+    summarize,
+)
 
 #: largest ``train.log`` a Ray task sends back to the driver (its tail)
 MAX_REMOTE_LOG_CHARS = 200_000
@@ -94,7 +101,9 @@ def execute(spec_dict: dict[str, Any], work_dir: str | None = None) -> dict[str,
             curve = read_monitor_curve(zoo_dir)
             safety = model_safety_summary(zoo_dir)
             provenance = run_provenance(final_model_path(zoo_dir))
-            result["summary"] = summarize(spec, curve, safety, wall_s, cmd, model_timesteps(zoo_dir), provenance)
+            interventions = monitor_interventions(zoo_dir)
+            timesteps = model_timesteps(zoo_dir)
+            result["summary"] = summarize(spec, curve, safety, wall_s, cmd, timesteps, provenance, interventions)
             result["curve_csv"] = curve.to_csv(index=False)
         return result
     finally:

@@ -52,6 +52,20 @@ def read_monitor_curve(zoo_dir: Path) -> pd.DataFrame:
     return curve
 
 
+def monitor_interventions(zoo_dir: Path) -> int | None:
+    """The shield interventions of a run from its ``*.monitor.csv`` files (``episode_interventions``), or ``None``
+    where no env of it reported a shield (an unshielded run, or a monitor without the column).
+
+    :param zoo_dir: rl-zoo3's log folder of the run (searched recursively).
+    """
+    counts = [
+        pd.read_csv(path, skiprows=1).get("episode_interventions", pd.Series(dtype=float))
+        for path in sorted(zoo_dir.rglob("*monitor.csv"))
+    ]
+    shielded = [count.dropna() for count in counts if count.notna().any()]
+    return int(sum(count.sum() for count in shielded)) if shielded else None
+
+
 def final_model_path(zoo_dir: Path) -> Path | None:
     """The final model that rl-zoo3 saved, ``<algo>/<env>_<id>/<env>.zip`` (not ``best_model.zip`` or checkpoints).
 
@@ -95,6 +109,7 @@ def summarize(
     cmd: Sequence[str],
     timesteps: int | None = None,
     provenance: dict[str, Any] | None = None,
+    interventions: int | None = None,
 ) -> dict[str, Any]:
     """The ``summary.json`` of a run.
 
@@ -113,6 +128,8 @@ def summarize(
         the finished episodes' total length.
     :param provenance: where the run came from (:func:`~sppo_sb3.experiments.provenance.run_provenance`: the
         commit, the resolved hyperparameters, the installed packages), stored under ``provenance``.
+    :param interventions: the interventions of a shield around the env (:func:`monitor_interventions`; ``None``:
+        none), used where the model keeps no safety summary of its own.
     """
     last = curve.tail(spec.last_n)
     episodes = len(curve)
@@ -131,7 +148,7 @@ def summarize(
         "last_n": int(min(spec.last_n, episodes)),
         "cumulative_violations": int(curve["violations"].sum()),
         "safety_rate": 100.0 * (episodes - unsafe) / episodes if episodes else float("nan"),
-        "cumulative_interventions": None,
+        "cumulative_interventions": interventions,
         "safety_source": "monitor",
         "wall_clock_s": round(wall_s, 3),
         "steps_per_s": timesteps / wall_s if wall_s > 0 else float("nan"),

@@ -8,7 +8,7 @@ their Optuna samplers (:mod:`~sppo_sb3.zoo.samplers`) to ``HYPERPARAMS_SAMPLER``
 train command cost-aware (used by ``sppo-train``):
 
 - every env that rl-zoo3 creates gets :class:`~sppo_sb3.common.monitor.EpisodeCostInfo` inside its ``Monitor``,
-  whose ``monitor.csv`` gains the columns ``episode_cost`` and ``episode_violations``;
+  whose ``monitor.csv`` gains the columns ``episode_cost``, ``episode_violations`` and ``episode_interventions``;
 - the evaluation callback is :class:`~sppo_sb3.common.monitor.CostEvalCallback` (``eval/mean_cost`` beside
   ``eval/mean_reward``, ``costs``/``violations`` in ``evaluations.npz``);
 - :class:`SafeExperimentManager` (:mod:`~sppo_sb3.zoo.experiment`) reads the package's own hyperparameters when no

@@ -313,6 +313,36 @@ def test_record_video(tmp_path: Path) -> None:
     assert list(videos.glob("*.mp4"))
 
 
+def test_episode_interventions_count_a_shield_wrappers_replacements(tmp_path: Path) -> None:
+    """monitor.csv's episode_interventions: the ShieldWrapper's replaced actions per episode, NaN without a shield; a
+    run's summary reads them (an rl-zoo3 algorithm behind the shield keeps no safety metrics of its own)."""
+    import gymnasium as gym
+    from stable_baselines3.common.monitor import Monitor
+
+    from sppo_sb3.experiments.summary import monitor_interventions
+
+    for name, shielded in (("shielded", True), ("alone", False)):
+        env: gym.Env = gym.make(ENV, max_episode_steps=40)
+        env = Monitor(
+            EpisodeCostInfo(ShieldWrapper(env, "auto") if shielded else env),
+            filename=str(tmp_path / name / "0"),
+            info_keywords=COST_INFO_KEYWORDS,
+        )
+        env.reset(seed=0)
+        replaced, done, info = 0, False, {}
+        while not done:  # full thrust along x: into the Point's wall
+            _, _, terminated, truncated, info = env.step(np.array([1.0, 0.0], dtype=np.float32))
+            replaced += int(info.get("shield_intervened", False))
+            done = terminated or truncated
+        env.close()
+        if shielded:
+            assert info["episode_interventions"] == replaced > 0
+            assert monitor_interventions(tmp_path / name) == replaced
+        else:
+            assert np.isnan(info["episode_interventions"]) and info["episode_violations"] > 0
+            assert monitor_interventions(tmp_path / name) is None
+
+
 def test_episode_cost_info_and_eval_callback(tmp_path: Path) -> None:
     import gymnasium as gym
     from stable_baselines3.common.logger import Logger
