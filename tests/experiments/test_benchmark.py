@@ -293,3 +293,14 @@ def test_a_variant_is_its_own_row_beside_its_algorithm(tmp_path: Path, capsys: p
     assert "| PDO | 10 ↑ |" in markdown and "| PDO (shielded) | 0 |" in markdown
     assert markdown.count("74.53 ± 7.53") == 1  # the paper's PDO row is PDO's, not its variant's
     assert sorted(["sppo", "pdo-shielded", "cpo", "pdo"], key=display.algo_sort_key) == ["cpo", "pdo", "pdo-shielded", "sppo"]
+
+
+def test_every_committed_run_is_named_by_its_folder() -> None:
+    """The tables group runs by ``run_name(algo, variant)`` from each summary: a run moved to another variant's folder
+    (``sppo`` → ``sppo-previous``) must say so in its summary, or its seeds are pooled with the folder it left."""
+    root = Path(__file__).resolve().parents[2] / "docs" / "benchmarks"
+    summaries = sorted(root.rglob("summary.json"))
+    assert summaries
+    for path in summaries:
+        summary = json.loads(path.read_text())
+        assert run_name(summary["algo"], summary.get("variant", "")) == path.parent.parent.name, path
