@@ -17,14 +17,16 @@ VELOCITY_TASK_NAMES: dict[str, str] = {task.env_id: f"{task.robot} velocity" for
 
 def display_name(name: str) -> str:
     """``SPPO (ours)``, ``PDO``, ... for the listed algorithms, the name itself otherwise; a variant's after its
-    algorithm's (``cpo-shielded``: ``CPO (shielded)``).
+    algorithm's (``cpo-shielded``: ``CPO (shielded)``; ``sppo-previous``: ``SPPO (ours, previous)``).
 
     :param name: rl-zoo3 name of the algorithm, or a row name ``<algo>-<variant>``.
     """
     algo, variant = split_run_name(name)
     known = ALGORITHMS.get(algo) or ZOO_BASELINES.get(algo)
     base = known.display_name if known else algo
-    return f"{base} ({variant})" if variant else base
+    if not variant:
+        return base
+    return f"{base[:-1]}, {variant})" if base.endswith(")") else f"{base} ({variant})"
 
 
 def algo_color(name: str) -> str | None:

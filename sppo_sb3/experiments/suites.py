@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from sppo_sb3.experiments.display import algo_sort_key, display_name, task_title
+from sppo_sb3.experiments.spec import split_run_name
 from sppo_sb3.experiments.tables import INTERVAL_LEGEND, estimate_cell
 
 #: the OmniSafe commit the published rows were read at
@@ -105,7 +106,8 @@ def _overview_cell(row: pd.Series) -> str:
 
 def overview_markdown(table: pd.DataFrame, task_names: Mapping[str, str], mode: str) -> str:
     """The grid at a glance: per task, every algorithm's final training return and training cost, the best of the
-    other methods, and whether :data:`OURS` is at or above it (on the means).
+    other methods (not :data:`OURS`'s variants: earlier settings of the same method), and whether :data:`OURS` is at or
+    above it (on the means).
 
     :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
     :param task_names: the tasks' display names (their ids where missing).
@@ -125,7 +127,8 @@ def overview_markdown(table: pd.DataFrame, task_names: Mapping[str, str], mode: 
     for task, group in table.groupby("task", sort=True):
         by_algo = group.set_index("algo")
         cells = [_overview_cell(by_algo.loc[algo]) if algo in by_algo.index else "–" for algo in algos]
-        others = by_algo.drop(index=OURS, errors="ignore")["return_last_n_mean"].dropna()
+        ours_too = [name for name in by_algo.index if split_run_name(str(name))[0] == OURS]  # SPPO and its variants
+        others = by_algo.drop(index=ours_too)["return_last_n_mean"].dropna()
         best, verdict = "–", "–"
         if len(others):
             best = f"{display_name(str(others.idxmax()))} {others.max():.0f}"

@@ -17,6 +17,7 @@ from sppo_sb3 import SPPO
 from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY
 from sppo_sb3.envs.velocity import ANT
 from sppo_sb3.experiments import layout, plot, stats
+from sppo_sb3.experiments.spec import run_name
 from sppo_sb3.experiments.velocity import (
     OMNISAFE_VELOCITY,
     TARGET_TASK,
@@ -98,10 +99,12 @@ def test_late_episodes_markdown_gives_each_task_and_algorithm_a_row() -> None:
     assert "| SPPO (ours) | 1 | 100 | 1.00 | 0 |" in lines
 
 
-def _write_run(root: Path, algo: str, seed: int, returns: list[float], costs: list[float], task: str = TARGET_TASK) -> None:
-    run_dir = layout.run_dir_for(root, task, algo, seed)
+def _write_run(
+    root: Path, algo: str, seed: int, returns: list[float], costs: list[float], task: str = TARGET_TASK, variant: str = ""
+) -> None:
+    run_dir = layout.run_dir_for(root, task, run_name(algo, variant), seed)
     run_dir.mkdir(parents=True)
-    summary = {"task": task, "algo": algo, "variant": "", "seed": seed, "steps": EPISODE * len(returns)}
+    summary = {"task": task, "algo": algo, "variant": variant, "seed": seed, "steps": EPISODE * len(returns)}
     summary |= {"episodes": len(returns), "return_last_n": float(np.mean(returns[-10:])), "safety_rate": 50.0}
     summary |= {"cumulative_violations": int(sum(costs)), "wall_clock_s": 600.0, "eval_unshielded_violations": 1.5}
     summary |= {"eval_unshielded_return": 2500.0, "cumulative_interventions": 7 if algo == "sppo" else None}
@@ -139,6 +142,18 @@ def test_velocity_overview_sets_sppo_against_the_best_of_the_others(tmp_path: Pa
     cheetah = next(line for line in lines if line.startswith("| HalfCheetah velocity"))
     assert cheetah.endswith("| 700 [700, 700], cost 0, 2 seeds | SACLag 1750 | no |")
     assert "SPPO's mean is at or above the best of the others on 1 of 2 tasks." in lines
+
+
+def test_the_overview_sets_sppo_against_other_methods_not_its_own_earlier_settings(tmp_path: Path) -> None:
+    _write_run(tmp_path, "sppo", 0, [900.0], [0.0], variant="previous")  # SPPO's earlier settings: a column, not a rival
+    _write_run(tmp_path, "sppo", 0, [700.0], [0.0])
+    _write_run(tmp_path, "sac", 0, [800.0], [0.0], variant="shielded")  # another method behind the shield: a rival
+    _write_run(tmp_path, "cpo", 0, [600.0], [5.0])
+    summaries, _ = stats.load_results(tmp_path)
+    lines = velocity_overview_markdown(stats.aggregate(summaries)).splitlines()
+    assert "| Task | CPO | SAC (shielded) | SPPO (ours) | SPPO (ours, previous) | Best of the others | SPPO ≥ it? |" in lines
+    cheetah = next(line for line in lines if line.startswith("| HalfCheetah velocity"))
+    assert cheetah.endswith("| 900, cost 0, 1 seed | SAC (shielded) 800 | no |")
 
 
 def test_plot_results_velocity_mode_writes_its_figures_and_tables(tmp_path: Path) -> None:
