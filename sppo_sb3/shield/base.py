@@ -196,6 +196,37 @@ class ShieldingRule(ABC):
         safe = np.where(intervened[:, None], backup, actions)
         return ShieldDecision(actions=safe, intervened=intervened, advantage=adv)
 
+    def shield_first_accepted(self, obs: np.ndarray, candidates: np.ndarray) -> tuple[ShieldDecision, np.ndarray]:
+        """Eq. 12 over ranked proposals: execute each row's first candidate that :meth:`shield` accepts, the backup
+        action where it accepts none.
+
+        Each candidate is asked through :meth:`shield` (fail closed), the later ones only in the rows that rejected
+        every earlier one; an accepted candidate is one the rule itself let through, so the guarantee of eq. 12 holds
+        for whichever is executed. Where none is accepted, the backup action is the one the first call chose (a rule
+        with memory, such as :class:`~sppo_sb3.shield.MujocoShieldingRule`'s warm plans, answers the later calls
+        without the memory the first one used: more conservatively, never less safely).
+
+        :param obs: ``(B, obs_dim)`` raw observations.
+        :param candidates: ``(B, K, act_dim)`` proposals in env action units, best first.
+        :return: the decision (``intervened``: no candidate accepted; ``advantage``: the executed candidate's, else
+            the first's) and ``(B,)`` the index of the executed candidate (-1: the backup).
+        """
+        obs = np.asarray(obs, dtype=np.float64).reshape(len(obs), -1)
+        candidates = np.asarray(candidates, dtype=np.float64).reshape(len(obs), -1, candidates.shape[-1])
+        decision = self.shield(obs, candidates[:, 0])
+        choice = np.where(decision.intervened, -1, 0)
+        for k in range(1, candidates.shape[1]):
+            rows = np.flatnonzero(choice < 0)
+            if len(rows) == 0:
+                break
+            tried = self.shield(obs[rows], candidates[rows, k])
+            accepted = rows[~tried.intervened]
+            decision.actions[accepted] = tried.actions[~tried.intervened]
+            decision.advantage[accepted] = tried.advantage[~tried.intervened]
+            choice[accepted] = k
+        decision.intervened = choice < 0
+        return decision, choice
+
     def close_failures(self, obs: np.ndarray, actions: np.ndarray, decision: ShieldDecision) -> ShieldDecision:
         """Fail closed after a decision: shield every row with a non-finite observation, proposal or ``Ā``.
 

@@ -47,6 +47,11 @@ class MPPIConfig:
     :param max_std: upper clamp of ``σ`` (and its initial value).
     :param policy_std: std of the clipped noise on ``π``'s actions inside the planner.
     :param gamma: discount of eq. 10.
+    :param num_candidates: actions :func:`mppi` proposes per env, best first: ``μ_J``'s (the plan), then the first
+        actions of the ``num_candidates - 1`` best trajectories of the first iteration, whose samples spread widest.
+        A shield executes the first it accepts (SPPO's collection and ``predict``), so that where it rejects the plan
+        the executed step is another of the planner's own choices rather than the backup's. 1: the plan alone, the
+        paper's eq. 12.
     :param max_rows: trajectories scored per network call: the ``E·N`` samples of many envs are cut into equal
         blocks of at most this many rows, so each block's activations stay in cache (64 envs × 512 samples of 512-wide
         activations are 64 MB; the unblocked batch is slower per action, see ``docs/results.md``).
@@ -69,8 +74,16 @@ class MPPIConfig:
     max_std: float = 2.0
     policy_std: float = 0.05
     gamma: float = 0.99
+    num_candidates: int = 1
     max_rows: int = 2048
     dtype: str = "float32"
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.num_candidates <= self.num_elites + 1:
+            raise ValueError(
+                f"num_candidates is the plan plus up to num_elites ({self.num_elites}) alternatives, so 1 to "
+                f"{self.num_elites + 1}; got {self.num_candidates}."
+            )
 
     def horizon_at(self, step: int) -> int:
         return max(1, round(linear_schedule(1, self.horizon, self.horizon_warmup, step)))
@@ -221,7 +234,7 @@ def refit_gaussian(elites: th.Tensor, elite_returns: th.Tensor, temperature: flo
 
 def mppi(
     model: TOLD, obs: th.Tensor, warm_mean: th.Tensor, noise: PlanNoise, min_std: th.Tensor, cfg: MPPIConfig
-) -> tuple[th.Tensor, th.Tensor]:
+) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
     """Plan one action per env (Alg. 2 lines 2–15).
 
     :param model: the TOLD model (in the planning precision).
@@ -229,7 +242,9 @@ def mppi(
     :param warm_mean: ``(E, H, A)`` the initial mean ``μ_0`` (the warm start); ``H`` is this plan's horizon.
     :param noise: the plan's standard normal draws.
     :param min_std: ``ε`` of eq. 11 (0-d tensor).
-    :return: actions ``(E, A)`` in [-1, 1] — ``μ_J``'s first step plus ``σ_J`` times ``noise.action`` — and ``μ_J``.
+    :return: actions ``(E, A)`` in [-1, 1] — ``μ_J``'s first step plus ``σ_J`` times ``noise.action`` —, ``μ_J``
+        and the alternatives ``(E, num_candidates - 1, A)``: the first actions of the first iteration's best
+        trajectories, best first.
     """
     n_envs, horizon, adim = warm_mean.shape
     n, p = cfg.num_samples, cfg.num_policy_samples
@@ -247,11 +262,26 @@ def mppi(
         all_actions, all_returns = th.cat([samples, pi_actions], 1), th.cat([returns, pi_returns], 1)
         elite_returns, elite_idx = all_returns.topk(cfg.num_elites, dim=1)
         elites = all_actions.gather(1, elite_idx[:, :, None, None].expand(-1, -1, horizon, adim))
+        if j == 0:  # topk sorts: the best first
+            alternatives = elites[:, : cfg.num_candidates - 1, 0]
         new_mean, new_std = refit_gaussian(elites, elite_returns, cfg.temperature)
         mean = cfg.momentum * mean + (1.0 - cfg.momentum) * new_mean
         std = th.maximum(new_std, min_std).clamp(max=cfg.max_std)  # eq. 11: σ ≥ ε
     action = (mean[:, 0] + std[:, 0] * noise.action).clamp(-1.0, 1.0)
-    return action, mean
+    return action, mean, alternatives
+
+
+class Plan(NamedTuple):
+    """What :meth:`MPPIPlanner.plan` returns.
+
+    :param action: ``(E, A)`` the planned actions in [-1, 1].
+    :param mean: ``(E, H_max, A)`` the new plan mean, the next call's ``prev_mean``.
+    :param candidates: ``(E, num_candidates, A)`` the planned action, then the alternatives of :func:`mppi`, best first.
+    """
+
+    action: th.Tensor
+    mean: th.Tensor
+    candidates: th.Tensor
 
 
 def warm_start(prev_mean: th.Tensor, horizon: int) -> th.Tensor:
@@ -314,7 +344,7 @@ class MPPIPlanner:
         step: int,
         deterministic: bool = False,
         generator: th.Generator | None = None,
-    ) -> tuple[th.Tensor, th.Tensor]:
+    ) -> Plan:
         """Plan one action per env from the previous plan's mean, shifted (Alg. 2 lines 2–15).
 
         :param obs: ``(E, obs_dim)`` observations.
@@ -323,7 +353,7 @@ class MPPIPlanner:
         :param deterministic: return ``μ_J``'s first action instead of a sample from ``N(μ_J, σ_J²)``.
         :param generator: where the noise comes from (torch's global RNG on the model's device if None); a CPU
             generator gives the same plan on every device.
-        :return: ``(E, A)`` actions in [-1, 1] and the new ``(E, H_max, A)`` mean, the next call's ``prev_mean``.
+        :return: the actions, the new mean and the candidates (:class:`Plan`).
         """
         cfg, n_envs = self.config, obs.shape[0]
         if prev_mean.shape != (n_envs, cfg.horizon, self.action_dim):
@@ -337,7 +367,7 @@ class MPPIPlanner:
         noise = PlanNoise(*(x.to(self.device) for x in noise))
         min_std = th.tensor(cfg.min_std_at(step), device=self.device)
         warm = warm_start(prev_mean.to(self.device), horizon)
-        action, mean = self.function(self._planning_model(model), obs.to(self.device), warm, noise, min_std, cfg)
+        action, mean, alternatives = self.function(self._planning_model(model), obs.to(self.device), warm, noise, min_std, cfg)
         new_mean = th.zeros_like(prev_mean, device=self.device)
         new_mean[:, :horizon] = mean
-        return action.clone(), new_mean
+        return Plan(action.clone(), new_mean, th.cat([action.unsqueeze(1), alternatives.float()], dim=1))

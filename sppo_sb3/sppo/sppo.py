@@ -256,6 +256,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         check_compile_mode(compile)
         self.compile = compile
         self.shield_rule: ShieldingRule | None = None
+        self.alternatives_executed = 0  # steps whose executed action was a planner's alternative (num_candidates > 1)
         self.planner_warm_start: np.ndarray | None = None  # training's plan mean, saved with the model (see save)
         self._init_safety(metrics_window=stats_window_size)
         if _init_setup_model:
@@ -376,8 +377,9 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
 
     # ------------------------------------------------------------------ exploration phase (Alg. 1 lines 3–9)
     def _propose_actions(self, obs: np.ndarray, raw_obs: np.ndarray, learning_starts: int) -> np.ndarray:
-        """The unshielded planner's flat actions in [-1, 1]: uniform during warm-up (some of them the backup's, with
-        ``refine_shield``), MPPI afterwards (Alg. 2)."""
+        """The unshielded planner's flat ``(E, K, A)`` candidates in [-1, 1], best first: one uniform action during
+        warm-up (some of them the backup's, with ``refine_shield``), MPPI's plan and its alternatives afterwards (Alg. 2;
+        ``K`` is the planner's ``num_candidates``)."""
         if self.num_timesteps < learning_starts:
             warmup = np.random.uniform(-1.0, 1.0, size=(len(obs), self.planner.action_dim)).astype(np.float32)
             if self.shield_is_learned and self.refine_backup_fraction > 0.0:
@@ -387,21 +389,29 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
                     zeta = self.shield_rule.checked_backup(raw_obs[backup], self.planner.action_dim)
                     zeta = zeta.reshape(-1, *self.action_space.shape)  # type: ignore[misc]
                     warmup[backup] = self.policy.scale_action(zeta).reshape(int(backup.sum()), -1)
-            return warmup
+            return warmup[:, None]
         obs_tensor = th.as_tensor(obs, dtype=th.float32, device=self.device)
-        actions, self._plan_mean = self.planner.plan(self.policy.model, obs_tensor, self._plan_mean, self.num_timesteps)
-        return actions.cpu().numpy()
+        plan = self.planner.plan(self.policy.model, obs_tensor, self._plan_mean, self.num_timesteps)
+        self._plan_mean = plan.mean
+        return plan.candidates.cpu().numpy()
 
     def _env_actions(self, scaled: np.ndarray) -> np.ndarray:
-        """Flat actions in [-1, 1] (the planner's and TOLD's) as a batch of actions of the env's units and shape."""
-        return self.policy.unscale_action(scaled.reshape(-1, *self.action_space.shape))
+        """Flat ``(E, K, A)`` candidates in [-1, 1] (the planner's and TOLD's) in the env's units and shape,
+        ``(E, K, *action_shape)``."""
+        flat = scaled.reshape(-1, *self.action_space.shape)  # type: ignore[misc]
+        return self.policy.unscale_action(flat).reshape(*scaled.shape[:2], *self.action_space.shape)  # type: ignore[misc]
 
-    def _shield(self, raw_obs: np.ndarray, env_actions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Eq. 12 on every env at once: the executed actions (env units and shape) and where the shield intervened."""
+    def _shield(self, raw_obs: np.ndarray, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Eq. 12 on every env at once, over each env's candidates best first
+        (:meth:`~sppo_sb3.shield.ShieldingRule.shield_first_accepted`): the executed actions (env units and shape) and
+        where the shield intervened (accepted no candidate)."""
         if self.shield_rule is None:
-            return env_actions, np.zeros(len(env_actions), dtype=bool)
-        decision = self.shield_rule.shield(raw_obs, env_actions)  # rules act on flat actions
-        return decision.actions.reshape(env_actions.shape).astype(self.action_space.dtype), decision.intervened
+            return candidates[:, 0], np.zeros(len(candidates), dtype=bool)
+        flat = candidates.reshape(*candidates.shape[:2], -1)  # rules act on flat actions
+        decision, choice = self.shield_rule.shield_first_accepted(raw_obs, flat)
+        self.alternatives_executed += int(np.sum(choice > 0))
+        executed = decision.actions.reshape(candidates[:, 0].shape).astype(self.action_space.dtype)
+        return executed, decision.intervened
 
     def collect_rollouts(
         self,
@@ -421,13 +431,13 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         while should_collect_more_steps(train_freq, num_collected_steps, num_collected_episodes):
             raw_obs = self._last_original_obs if self._vec_normalize_env is not None else self._last_obs
             proposed = self._propose_actions(self._last_obs, raw_obs, learning_starts)  # type: ignore[arg-type]
-            proposed_env = self._env_actions(proposed)
-            actions, intervened = self._shield(raw_obs, proposed_env)  # type: ignore[arg-type]
+            candidates = self._env_actions(proposed)
+            actions, intervened = self._shield(raw_obs, candidates)  # type: ignore[arg-type]
 
             new_obs, rewards, dones, infos = env.step(actions)
             assert isinstance(new_obs, np.ndarray)  # flat Box observations (check_spaces)
             check_finite(new_obs, rewards)
-            for info, shielded, wanted in zip(infos, intervened, proposed_env):
+            for info, shielded, wanted in zip(infos, intervened, candidates[:, 0]):
                 info[INTERVENED_KEY], info[PROPOSED_ACTION_KEY] = bool(shielded), wanted
             self.num_timesteps += env.num_envs
             num_collected_steps += 1
@@ -482,7 +492,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         losses = []
         for _ in range(gradient_steps):
             t = self.replay_buffer.sample_cost_transitions(batch_size)
-            env_actions = self._env_actions(t.actions)  # rules flatten whatever the Box shape
+            env_actions = self._env_actions(t.actions[:, None])[:, 0]  # rules flatten whatever the Box shape
             losses.append(rule.refine(t._replace(actions=env_actions), batch_size))
         self.logger.record("train/shield_loss", float(np.mean(losses)))
 
@@ -500,6 +510,8 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
 
     def dump_logs(self) -> None:
         self._record_safety_logs()
+        if self.planner_config.num_candidates > 1:
+            self.logger.record("safety/alternatives_executed", self.alternatives_executed)
         self._record_train_stats()
         super().dump_logs()
 
@@ -532,14 +544,13 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             prev_mean = self._warm_start_from_state(state, episode_start, len(obs))
             generator = th.Generator().manual_seed(0) if deterministic else None  # on the CPU: the same on every device
             model, step = self.policy.model, self.num_timesteps
-            scaled, mean = self.planner.plan(model, obs_tensor, prev_mean, step, deterministic, generator)
-            new_state = (mean.cpu().numpy(),)
+            plan = self.planner.plan(model, obs_tensor, prev_mean, step, deterministic, generator)
+            scaled, new_state = plan.candidates, (plan.mean.cpu().numpy(),)
         else:
             with th.no_grad():
-                scaled = self.policy._predict(obs_tensor)
-        actions = self._env_actions(scaled.cpu().numpy())
-        if self.shield_at_predict:
-            actions, _ = self._shield(raw_obs, actions)
+                scaled = self.policy._predict(obs_tensor)[:, None]
+        candidates = self._env_actions(scaled.cpu().numpy())
+        actions = self._shield(raw_obs, candidates)[0] if self.shield_at_predict else candidates[:, 0]
         actions = np.clip(actions, self.action_space.low, self.action_space.high)
         return (actions if vectorized else actions[0]), new_state
 

@@ -199,6 +199,29 @@ def test_shield_executes_proposal_iff_advantage_at_most_eta() -> None:
     np.testing.assert_array_equal(decision.actions[3:], 0.0)
 
 
+def test_shield_first_accepted_executes_each_rows_first_accepted_candidate() -> None:
+    """Ranked proposals: the first candidate with ``Ā <= η`` is executed, the backup where none is, and a NaN
+    candidate is never accepted (fail closed)."""
+    rule = FirstCoordinateRule(eta=0.25)
+    candidates = np.array(
+        [
+            [[0.1, 0.1], [0.9, 0.9], [0.0, 0.3]],  # the plan is accepted
+            [[0.9, 0.1], [0.5, 0.2], [0.2, -0.4]],  # the plan and the next rejected: the third
+            [[0.9, 0.1], [np.nan, 0.2], [0.7, 0.0]],  # none: the backup
+            [[0.9, 0.1], [np.nan, 0.2], [-1.0, 0.5]],  # the NaN is skipped
+        ]
+    )
+    decision, choice = rule.shield_first_accepted(np.zeros((4, 3)), candidates)
+    np.testing.assert_array_equal(choice, [0, 2, -1, 2])
+    np.testing.assert_array_equal(decision.intervened, [False, False, True, False])
+    np.testing.assert_array_equal(decision.actions, [[0.1, 0.1], [0.2, -0.4], [0.0, 0.0], [-1.0, 0.5]])
+    np.testing.assert_array_equal(decision.advantage, [0.1, 0.2, 0.9, -1.0])
+    single, first = rule.shield_first_accepted(np.zeros((4, 3)), candidates[:, :1])
+    plain = rule.shield(np.zeros((4, 3)), candidates[:, 0])
+    np.testing.assert_array_equal(single.actions, plain.actions)
+    np.testing.assert_array_equal(first, np.where(plain.intervened, -1, 0))
+
+
 def test_in_shielding_set_boundary() -> None:
     adv = np.array([-1.0, 0.0, 0.2, np.nextafter(0.2, 1.0), 3.0])
     np.testing.assert_array_equal(in_shielding_set(adv, 0.2), [False, False, False, True, True])

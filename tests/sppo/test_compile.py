@@ -107,16 +107,17 @@ def test_tensor_adam_step_equals_torch_adam():
 
 def test_compiled_plan_equals_eager_given_the_same_noise():
     model = make_policy().model
-    cfg = MPPIConfig(**TINY_MPPI, horizon=3)
+    cfg = MPPIConfig(**TINY_MPPI, horizon=3, num_candidates=3)
     noise = draw_noise(cfg, 2, 3, 2, False, th.Generator().manual_seed(3), CPU)
     args = (model, th.randn(2, 4), th.rand(2, 3, 2) - 0.5, noise, th.tensor(0.1), cfg)
     compiled = CompiledFunction(mppi, True, CPU, "planner")
     with th.no_grad():
-        eager_action, eager_mean = mppi(*args)
-        action, mean = compiled(*args)
+        eager_action, eager_mean, eager_alternatives = mppi(*args)
+        action, mean, alternatives = compiled(*args)
     assert compiled.compiled
     th.testing.assert_close(action, eager_action, rtol=1e-5, atol=1e-6)
     th.testing.assert_close(mean, eager_mean, rtol=1e-5, atol=1e-6)
+    th.testing.assert_close(alternatives, eager_alternatives, rtol=1e-5, atol=1e-6)
 
 
 def test_a_failed_compilation_warns_once_and_runs_eagerly():

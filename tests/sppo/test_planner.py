@@ -14,6 +14,7 @@ from sppo_sb3.sppo.planner import (
     low_precision_copy,
     mppi,
     refit_gaussian,
+    trajectory_return,
     warm_start,
 )
 from sppo_sb3.sppo.policies import ELU, TOLD
@@ -65,7 +66,7 @@ def plan(planner: MPPIPlanner, model: TOLD, obs: th.Tensor, **kwargs) -> th.Tens
 
 def test_plan_shapes_bounds_and_sigma_floor():
     model, planner = tiny_model(), small_planner(min_std_start=0.7, min_std_end=0.7)
-    actions, mean = planner.plan(model, th.randn(3, 3), planner.initial_mean(3), step=0)
+    actions, mean, _ = planner.plan(model, th.randn(3, 3), planner.initial_mean(3), step=0)
     assert actions.shape == (3, 2) and mean.shape == (3, 3, 2)
     assert actions.abs().max() <= 1.0
     # eq. 11: the final σ never drops below ε, so sampled actions spread at least that much across calls
@@ -82,14 +83,41 @@ def test_warm_start_shifts_by_one_step():
     assert warm_start(previous, 2).shape == (2, 2, 2)
 
 
+def test_candidates_are_the_plan_then_the_first_iterations_best_first_actions():
+    """``num_candidates``: the plan's action first, then the first actions of iteration 1's best trajectories, ranked
+    by their returns (eq. 10): recomputed here from the same noise."""
+    cfg = MPPIConfig(num_samples=16, num_elites=4, iterations=2, horizon=2, num_candidates=4, max_std=0.3)  # no clipping
+    model = tiny_model()
+    assert cfg.num_policy_samples == 0  # every elite is a Gaussian sample
+    noise = draw_noise(cfg, 2, 2, 2, True, th.Generator().manual_seed(1), th.device("cpu"))
+    obs, warm = th.randn(2, 3), th.zeros(2, 2, 2)
+    with th.no_grad():
+        _, _, alternatives = mppi(model, obs, warm, noise, th.tensor(0.1), cfg)
+        samples = (warm.unsqueeze(1) + cfg.max_std * noise.samples[0]).clamp(-1.0, 1.0)  # (E, N, H, A)
+        z = model.encode(obs).repeat_interleave(cfg.num_samples, 0)
+        flat = samples.permute(2, 0, 1, 3).reshape(2, -1, 2)
+        returns = trajectory_return(model, z, flat, cfg.gamma, cfg.policy_std, noise.terminal[0]).view(2, -1)
+    assert alternatives.shape == (2, 3, 2)
+    for env in range(2):
+        rows = [int(th.nonzero((samples[env, :, 0] == a).all(-1))[0]) for a in alternatives[env]]
+        ranked = returns[env, rows]
+        assert th.all(ranked[:-1] >= ranked[1:])  # best first
+        assert ranked[0] == returns[env].max()
+    planner = MPPIPlanner(cfg, action_dim=2)
+    plan = planner.plan(model, obs, planner.initial_mean(2), 0, deterministic=True, generator=th.Generator().manual_seed(1))
+    assert plan.candidates.shape == (2, 4, 2) and th.equal(plan.candidates[:, 0], plan.action)
+    with pytest.raises(ValueError, match="num_candidates"):
+        MPPIConfig(num_elites=4, num_candidates=6)
+
+
 def test_the_plan_starts_from_the_given_state():
     """The warm start is the caller's: the returned mean seeds the next plan, and other means give other plans."""
     model, planner = tiny_model(), small_planner(iterations=1, momentum=0.9)
     obs = th.randn(2, 3)
-    _, mean = planner.plan(model, obs, planner.initial_mean(2), 0)
+    mean = planner.plan(model, obs, planner.initial_mean(2), 0).mean
     gen = th.Generator().manual_seed(0)
-    warm, _ = planner.plan(model, obs, mean, 0, deterministic=True, generator=gen)
-    cold, _ = planner.plan(model, obs, planner.initial_mean(2), 0, deterministic=True, generator=gen.manual_seed(0))
+    warm = planner.plan(model, obs, mean, 0, deterministic=True, generator=gen).action
+    cold = planner.plan(model, obs, planner.initial_mean(2), 0, deterministic=True, generator=gen.manual_seed(0)).action
     assert not th.allclose(warm, cold)
     with pytest.raises(ValueError, match="state must have shape"):
         planner.plan(model, obs, planner.initial_mean(3), 0)

@@ -345,3 +345,27 @@ def test_cmdp_relabels_train_shielded(absorbing: str) -> None:
     model = tiny_sppo(absorbing=absorbing, absorbing_penalty=-2.0).learn(200)
     assert model.replay_buffer.absorbing == absorbing and model.replay_buffer.penalty == -2.0
     assert model.safety_metrics.violations == 0 and model.safety_metrics.interventions > 0
+
+
+class PositiveFirstCoordinateRule(ShieldingRule):
+    """Rejects every action whose first coordinate is positive: ``Q̄(s, a) = max(a_0, 0)``, backup ``ζ(s) = 0``."""
+
+    def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        return np.maximum(np.asarray(actions, dtype=np.float64)[:, 0], 0.0)
+
+    def backup_action(self, obs: np.ndarray) -> np.ndarray:
+        return np.zeros((len(obs), 2))
+
+
+def test_the_shield_executes_the_planners_first_accepted_candidate() -> None:
+    """``num_candidates > 1``: where the rule rejects the plan, an accepted alternative of the planner is executed
+    and stored as a normal step; the backup (and the relabel) only where the rule rejects every candidate."""
+    planner = {**TINY_SPPO["planner_kwargs"], "num_candidates": 4}
+    ranked = tiny_sppo(shield=PositiveFirstCoordinateRule(), planner_kwargs=planner, learning_starts=20).learn(300)
+    buffer, n = ranked.replay_buffer, ranked.replay_buffer.pos
+    executed = ranked.policy.unscale_action(buffer.actions[:n, 0])
+    assert ranked.alternatives_executed > 0
+    assert np.all(executed[:, 0] <= 1e-6)  # every stored step is an accepted candidate or the backup
+    plain = tiny_sppo(shield=PositiveFirstCoordinateRule(), learning_starts=20).learn(300)
+    assert plain.alternatives_executed == 0
+    assert ranked.safety_metrics.interventions < plain.safety_metrics.interventions

@@ -185,7 +185,7 @@ def test_the_bf16_planner_keeps_every_ensemble_head_output_in_fp32() -> None:
     cfg = MPPIConfig(num_samples=16, num_elites=4, iterations=2, horizon=3)
     noise = draw_noise(cfg, 2, 3, ACT, True, th.Generator().manual_seed(0), th.device("cpu"))
     with th.no_grad():
-        action, _ = mppi(shadow, th.randn(2, OBS), th.zeros(2, 3, ACT), noise, th.tensor(0.1), cfg)
+        action, _, _ = mppi(shadow, th.randn(2, OBS), th.zeros(2, 3, ACT), noise, th.tensor(0.1), cfg)
     assert action.dtype == th.float32 and th.isfinite(action).all()
 
 
