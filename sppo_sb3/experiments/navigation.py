@@ -58,11 +58,12 @@ def navigation_tables_markdown(table: pd.DataFrame) -> str:
     :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
     """
     caption = (
-        "Ours: the training runs' last 10 episodes; the final policy deployed alone for 10 deterministic episodes (its\n"
-        "cost per episode is OmniSafe's measure); the cost paid over training (a step with any cost term costs 1) and\n"
-        "the share of training episodes that paid none; shield interventions; wall clock per run. OmniSafe: the\n"
-        "final policy's episode reward and cost at its own budget, cost limit 25 unless stated (the model-based agents:\n"
-        f"1, and they observed the robot's coordinates, not the lidar; commit {OMNISAFE_COMMIT[:8]})."
+        "Ours: the training runs' last 10 episodes; the final policy deployed for 10 deterministic episodes with its\n"
+        "shield (an unshielded algorithm: the same as alone) and alone (its cost per episode is OmniSafe's measure);\n"
+        "the cost paid over training (a step with any cost term costs 1) and the share of training episodes that paid\n"
+        "none; shield interventions; wall clock per run. OmniSafe: the final policy's episode reward and cost at its\n"
+        "own budget, cost limit 25 unless stated (the model-based agents: 1, and they observed the robot's\n"
+        f"coordinates, not the lidar; commit {OMNISAFE_COMMIT[:8]})."
     )
     return published_tables_markdown(table, OMNISAFE_NAVIGATION, caption, "--navigation")
 

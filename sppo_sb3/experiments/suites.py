@@ -47,6 +47,8 @@ class PublishedRow:
 #: the columns of a suite's table: (summary key, digits, title)
 SUITE_ESTIMATES: tuple[tuple[str, int, str], ...] = (
     ("return_last_n", 1, "Return, last 10 training episodes"),
+    ("eval_return", 1, "Deployed with its shield: return"),
+    ("eval_violations", 2, "Deployed with its shield: cost per episode"),
     ("eval_unshielded_return", 1, "Deployed without shield: return"),
     ("eval_unshielded_violations", 2, "Deployed without shield: cost per episode"),
     ("cumulative_violations", 0, "Training cost (sum over training)"),
@@ -70,9 +72,12 @@ def _our_row(row: pd.Series) -> str:
 
 
 def _published_row(row: PublishedRow) -> str:
+    """OmniSafe's final policy, deployed without a shield: its reward and cost in those columns, "–" elsewhere."""
     reward, cost = (f"{mean:.2f} ± {std:.2f}" for mean, std in (row.reward, row.cost))
     limit = "" if row.cost_limit == OMNISAFE_COST_LIMIT else f" (cost limit {row.cost_limit:g})"
-    return f"| OmniSafe {row.algorithm}{limit} | {row.budget:.0e} | – | {reward} | {cost} | – | – | – | – |"
+    published = {"eval_unshielded_return": reward, "eval_unshielded_violations": cost}
+    cells = [published.get(key, "–") for key, _, _ in SUITE_ESTIMATES] + ["–", "–"]  # interventions, wall clock
+    return "| " + " | ".join([f"OmniSafe {row.algorithm}{limit}", f"{row.budget:.0e}", *cells]) + " |"
 
 
 def published_tables_markdown(

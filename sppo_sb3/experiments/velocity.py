@@ -80,10 +80,11 @@ def velocity_tables_markdown(table: pd.DataFrame) -> str:
     :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
     """
     caption = (
-        "Ours: the training runs' last 10 episodes; the final policy deployed alone for 10 deterministic episodes (its\n"
-        "cost per episode is OmniSafe's measure); the cost paid over training (a step above the threshold costs 1) and\n"
-        "the share of training episodes that paid none; shield interventions; wall clock per run. OmniSafe: the final\n"
-        f"policy's episode reward and cost, mean ± std over 5 seeds, at its own budget (commit {OMNISAFE_COMMIT[:8]})."
+        "Ours: the training runs' last 10 episodes; the final policy deployed for 10 deterministic episodes with its\n"
+        "shield (an unshielded algorithm: the same as alone) and alone (its cost per episode is OmniSafe's measure);\n"
+        "the cost paid over training (a step above the threshold costs 1) and the share of training episodes that\n"
+        "paid none; shield interventions; wall clock per run. OmniSafe: the final policy's episode reward and cost,\n"
+        f"mean ± std over 5 seeds, at its own budget (commit {OMNISAFE_COMMIT[:8]})."
     )
     return published_tables_markdown(table, OMNISAFE_VELOCITY, caption, "--velocity")
 

@@ -108,6 +108,7 @@ def _write_run(
     summary |= {"episodes": len(returns), "return_last_n": float(np.mean(returns[-10:])), "safety_rate": 50.0}
     summary |= {"cumulative_violations": int(sum(costs)), "wall_clock_s": 600.0, "eval_unshielded_violations": 1.5}
     summary |= {"eval_unshielded_return": 2500.0, "cumulative_interventions": 7 if algo == "sppo" else None}
+    summary |= {"eval_return": 2600.0, "eval_violations": 0.0 if algo == "sppo" else 1.5}
     layout.write_finished(run_dir, summary, _curve(returns, costs).to_csv(index=False))
 
 
@@ -120,12 +121,13 @@ def test_velocity_tables_put_omnisafes_published_rows_beside_ours(tmp_path: Path
     lines = markdown.splitlines()
     ours = next(line for line in lines if line.startswith("| SPPO"))
     assert ours.startswith(
-        "| SPPO (ours) | 2e+03 | 700.0 [700.0, 700.0] | 2500.0 [2500.0, 2500.0] | 1.50 [1.50, 1.50] | 0 [0, 0] |"
+        "| SPPO (ours) | 2e+03 | 700.0 [700.0, 700.0] | 2600.0 [2600.0, 2600.0] | 0.00 [0.00, 0.00] "
+        "| 2500.0 [2500.0, 2500.0] | 1.50 [1.50, 1.50] | 0 [0, 0] |"
     )
     assert ours.endswith("| 7 | 10 |")  # interventions, wall clock in minutes
     published = [line for line in lines if line.startswith("| OmniSafe")]
     assert len(published) == len(OMNISAFE_VELOCITY[TARGET_TASK]) == 4
-    assert "| OmniSafe SACLag | 1e+06 | – | 2833.72 ± 3.62 | 0.00 ± 0.00 |" in markdown
+    assert "| OmniSafe SACLag | 1e+06 | – | – | – | 2833.72 ± 3.62 | 0.00 ± 0.00 |" in markdown
     assert lines.index(ours) < lines.index(published[0])
 
 
