@@ -77,6 +77,28 @@ def test_adversarial_proposals_never_reach_a_static_constraint(env_id: str, pref
     assert interventions > 0  # the proposals did head into the constraint
 
 
+def test_ranked_adversarial_candidates_never_reach_a_hazard() -> None:
+    """``shield_first_accepted`` on a rule with memory (warm plans): every candidate heads into or near the nearest
+    hazard; whichever is executed, the robot never enters one, and alternatives do get executed."""
+    env = SafetyNavigationEnv("Point", "Goal", 1)
+    rule = NavigationShieldingRule("Point", "Goal", 1)
+    obs, _ = env.reset(seed=1)
+    rng = np.random.default_rng(0)
+    costs, chosen = 0.0, []
+    for _ in range(200):
+        adversary = toward_nearest(env, "hazard")
+        candidates = np.clip(adversary + rng.normal(0.0, 0.5, (4, 2)), -1, 1)
+        candidates[0] = adversary
+        decision, choice = rule.shield_first_accepted(obs[None], candidates[None])
+        obs, _, terminated, truncated, info = env.step(decision.actions[0])
+        costs += info["cost"]
+        chosen.append(int(choice[0]))
+        if terminated or truncated:
+            obs, _ = env.reset()
+    assert costs == 0
+    assert -1 in chosen and any(k > 0 for k in chosen)  # the backup and an alternative both ran
+
+
 def test_random_proposals_stay_safe_on_circle_walls() -> None:
     env = gym.make("sppo_sb3/SafetyPointCircle2-v0")
     shielded = ShieldWrapper(env, default_shielding_rule("sppo_sb3/SafetyPointCircle2-v0", env))
