@@ -79,6 +79,12 @@ class MPPIConfig:
     dtype: str = "float32"
 
     def __post_init__(self) -> None:
+        if self.iterations < 1 or not 1 <= self.num_elites <= self.num_samples + self.num_policy_samples:
+            raise ValueError(
+                "MPPI needs iterations >= 1 and 1 <= num_elites <= the trajectories it scores (num_samples plus "
+                f"policy_fraction of them); got iterations={self.iterations}, num_elites={self.num_elites}, "
+                f"num_samples={self.num_samples}."
+            )
         if not 1 <= self.num_candidates <= self.num_elites + 1:
             raise ValueError(
                 f"num_candidates is the plan plus up to num_elites ({self.num_elites}) alternatives, so 1 to "

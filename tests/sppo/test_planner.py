@@ -108,6 +108,8 @@ def test_candidates_are_the_plan_then_the_first_iterations_best_first_actions():
     assert plan.candidates.shape == (2, 4, 2) and th.equal(plan.candidates[:, 0], plan.action)
     with pytest.raises(ValueError, match="num_candidates"):
         MPPIConfig(num_elites=4, num_candidates=6)
+    with pytest.raises(ValueError, match="num_elites"):
+        MPPIConfig(num_samples=16, num_elites=64)
 
 
 def test_the_plan_starts_from_the_given_state():

@@ -27,12 +27,12 @@ def test_explicit_arguments_override_the_named_sizes() -> None:
         "SafePointCircle-v0",
         sizes="tdmpc",
         policy_kwargs=dict(hidden_dim=64),
-        planner_kwargs=dict(num_samples=32),
+        planner_kwargs=dict(num_samples=128),
         batch_size=16,
         horizon=4,
         compile=False,
     )
-    assert sizes_of(model) == (50, 256, 64, 32, 64, 6, 16, 4, 4)
+    assert sizes_of(model) == (50, 256, 64, 128, 64, 6, 16, 4, 4)
 
 
 def test_sizes_survive_save_and_load_and_are_logged(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
