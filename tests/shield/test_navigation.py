@@ -10,15 +10,17 @@ from tiny_hyperparams import TINY_SAILR, TINY_SPPO
 
 import sppo_sb3
 from sppo_sb3.envs.navigation import SafetyNavigationEnv
+from sppo_sb3.envs.navigation.tasks.button import ButtonTask
 from sppo_sb3.shield import ShieldFailure, ShieldWrapper
 from sppo_sb3.shield.registry import default_shielding_rule
 from sppo_sb3.shield.tasks.navigation import NavigationConstraint, NavigationShieldingRule, navigation_task, shield_model
 from sppo_sb3.shield.tasks.navigation import shield_state as to_shield_state
 
 
-def toward_nearest(env: SafetyNavigationEnv, prefix: str) -> np.ndarray:
-    """The action that drives the robot straight at the nearest object named ``prefix…`` (an adversarial proposal)."""
-    names = [name for name in env.layout if name.startswith(prefix)]
+def toward_nearest(env: SafetyNavigationEnv, prefix: str, exclude: str | None = None) -> np.ndarray:
+    """The action that drives the robot straight at the nearest object named ``prefix…`` but ``exclude`` (an
+    adversarial proposal)."""
+    names = [name for name in env.layout if name.startswith(prefix) and name != exclude]
     agent = env.world.agent_xpos()[:2]
     targets = env.world.body_xpos(names)[:, :2]
     target = targets[np.argmin(np.linalg.norm(targets - agent, axis=1))]
@@ -75,6 +77,28 @@ def test_adversarial_proposals_never_reach_a_static_constraint(env_id: str, pref
             shielded.reset()
     assert costs == 0
     assert interventions > 0  # the proposals did head into the constraint
+
+
+@pytest.mark.parametrize("shielded", [True, False])
+def test_adversarial_proposals_never_press_a_wrong_button(shielded: bool) -> None:
+    """Button 1: driving at the nearest button that is not the goal; unshielded, the same proposals press one."""
+    env = SafetyNavigationEnv("Point", "Button", 1)
+    rule = NavigationShieldingRule("Point", "Button", 1)
+    obs, _ = env.reset(seed=1)
+    presses = interventions = 0
+    for _ in range(300):
+        task = env.task
+        assert isinstance(task, ButtonTask)
+        proposal = toward_nearest(env, "button", exclude=f"button{task.goal_button}")
+        if shielded:
+            decision = rule.shield(obs[None], proposal[None])
+            proposal, interventions = decision.actions[0], interventions + int(decision.intervened[0])
+        obs, _, _, _, info = env.step(proposal)
+        presses += info.get("cost_buttons", 0.0) > 0
+    if shielded:
+        assert presses == 0 and interventions > 0
+    else:
+        assert presses > 0  # so the shielded case can fail
 
 
 def test_ranked_adversarial_candidates_never_reach_a_hazard() -> None:
@@ -144,6 +168,7 @@ def test_the_constraint_covers_only_what_the_level_constrains() -> None:
         len(constraint("Point", "Push", 1).contact_columns) == 0 and len(constraint("Point", "Push", 2).contact_columns) == 4
     )
     assert constraint("Car", "Circle", 2).wall_both_axes and not constraint("Car", "Circle", 1).wall_both_axes
+    assert len(constraint("Car", "Button", 1).button_columns) == 4 and constraint("Point", "Button", 1).goal_columns
     with pytest.raises(ValueError, match="needs no shield"):
         NavigationShieldingRule("Point", "Goal", 0)
 

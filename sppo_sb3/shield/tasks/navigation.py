@@ -16,10 +16,12 @@ the robot's motion changes by about that much when it pushes one. The constraint
 - **hazards** (exact): the robot body's ``(x, y)`` within a hazard's radius, Safety-Gymnasium's cost;
 - **pillars** and **vases** where constrained (conservative): the robot within ``object radius + robot radius`` of
   one, a superset of touching it (a vase moves only when touched, so its velocity cost is covered too);
+- **buttons** other than the goal (Button 1 and 2, conservative): the robot within ``button radius + robot radius``
+  of one, also in the 10 steps after a press when the env charges none;
 - **walls** (Circle 1 and 2, exact): ``|x|`` (and ``|y|``) beyond 1.125.
 
-What is not covered: gremlins (they circle; the shield does not predict them) and the buttons a Button task forbids.
-On those tasks the rule shields the hazards only.
+What is not covered: gremlins (they circle; the shield does not predict them). On the Button tasks the rule shields
+the hazards and the wrong buttons.
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ import mujoco
 import numpy as np
 
 from sppo_sb3.envs.navigation.env import SafetyNavigationEnv
-from sppo_sb3.envs.navigation.objects import Hazards, Pillars, Sigwalls, Vases
+from sppo_sb3.envs.navigation.objects import Buttons, Hazards, Pillars, Sigwalls, Vases
 from sppo_sb3.envs.navigation.robots import ROBOTS
 from sppo_sb3.envs.navigation.tasks import TASKS, NavigationTask
 from sppo_sb3.envs.navigation.world import FRAME_SKIP, world_xml
@@ -43,6 +45,8 @@ from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule, lookahead_horizon
 #: rule was first validated with), 8 of the Car's 40 ms steps, over the Car's braking from top speed (0.77 m/s, 0.2 s)
 #: with margin, and at half the cost of 15 (docs/guide/tasks.md: "The navigation shield").
 LOOKAHEAD_SECONDS = 0.3
+#: a button this close to the goal is the goal button (the env puts the goal on it; buttons keep 0.4 m apart)
+GOAL_ON_BUTTON = 1e-3
 
 
 def navigation_task(robot: str, task: str, level: int) -> NavigationTask:
@@ -58,6 +62,9 @@ class NavigationConstraint(StateConstraint):
     :param hazard_size: the hazards' radius.
     :param contact_columns: ``(n, 2)`` state columns of each constrained pillar's or vase's ``(x, y)``.
     :param contact_reach: ``(n,)`` for each, the distance under which the robot may touch it.
+    :param button_columns: ``(n, 2)`` state columns of each button's ``(x, y)`` where a wrong button costs.
+    :param button_reach: the distance under which the robot may touch a button.
+    :param goal_columns: the state columns of the goal's ``(x, y)``, which sits on the goal button: that one is free.
     :param wall: ``|x|`` beyond this is unsafe (``None``: no walls).
     :param wall_both_axes: ``|y|`` too.
     """
@@ -66,6 +73,9 @@ class NavigationConstraint(StateConstraint):
     hazard_size: float = 0.0
     contact_columns: tuple[tuple[int, int], ...] = ()
     contact_reach: tuple[float, ...] = ()
+    button_columns: tuple[tuple[int, int], ...] = ()
+    button_reach: float = 0.0
+    goal_columns: tuple[int, int] | None = None
     wall: float | None = None
     wall_both_axes: bool = False
 
@@ -76,6 +86,8 @@ class NavigationConstraint(StateConstraint):
         hazard_size, reach = 0.0, []
         wall, both = None, False
         contacts: list[tuple[int, int]] = []
+        buttons: tuple[tuple[int, int], ...] = ()
+        button_reach, goal = 0.0, None
         for group in task.groups:
             if not group.constrained:
                 continue
@@ -89,14 +101,17 @@ class NavigationConstraint(StateConstraint):
                 vases = [mocap_columns(model, name) for name in group.names]
                 contacts += vases
                 reach += [group.size * np.sqrt(2) + task.robot.radius] * len(vases)
+            elif isinstance(group, Buttons):
+                buttons = tuple(mocap_columns(model, name) for name in group.names)
+                button_reach, goal = group.size + task.robot.radius, mocap_columns(model, "goal")
             elif isinstance(group, Sigwalls):
                 wall, both = group.size, group.num == 4
-        return cls(hazards, hazard_size, tuple(contacts), tuple(reach), wall, both)
+        return cls(hazards, hazard_size, tuple(contacts), tuple(reach), buttons, button_reach, goal, wall, both)
 
     @property
     def empty(self) -> bool:
         """Whether nothing is constrained (the shield then never acts)."""
-        return not self.hazard_columns and not self.contact_columns and self.wall is None
+        return not self.hazard_columns and not self.contact_columns and not self.button_columns and self.wall is None
 
     def margins(self, states: np.ndarray) -> np.ndarray:
         """``(..., k)`` the signed distance of each constraint (``<= 0``: violated) in states ``(..., nstate)``."""
@@ -106,10 +121,20 @@ class NavigationConstraint(StateConstraint):
             if columns:
                 centres = states[..., np.array(columns)]  # (..., n, 2)
                 parts.append(np.linalg.norm(centres - agent[..., None, :], axis=-1) - reach)
+        if self.button_columns:
+            parts.append(self.wrong_button_margins(states, agent))
         if self.wall is not None:
             extent = np.abs(agent) if self.wall_both_axes else np.abs(agent[..., :1])
             parts.append(self.wall - extent)
         return np.concatenate(parts, axis=-1) if parts else np.full((*states.shape[:-1], 1), np.inf)
+
+    def wrong_button_margins(self, states: np.ndarray, agent: np.ndarray) -> np.ndarray:
+        """``(..., n)`` the robot's distance to touching each button, ``inf`` for the goal button (the goal sits on it)."""
+        centres = states[..., np.array(self.button_columns)]  # (..., n, 2)
+        goal = states[..., np.array(self.goal_columns)]  # (..., 2)
+        margins = np.linalg.norm(centres - agent[..., None, :], axis=-1) - self.button_reach
+        is_goal = np.linalg.norm(centres - goal[..., None, :], axis=-1) < GOAL_ON_BUTTON
+        return np.where(is_goal, np.inf, margins)
 
     def is_unsafe(self, steps: ConstraintSteps) -> np.ndarray:
         margins = self.margins(steps.after)
