@@ -20,7 +20,11 @@ from sppo_sb3.shield.tasks.navigation import shield_state as to_shield_state
 def toward_nearest(env: SafetyNavigationEnv, prefix: str, exclude: str | None = None) -> np.ndarray:
     """The action that drives the robot straight at the nearest object named ``prefix…`` but ``exclude`` (an
     adversarial proposal)."""
-    names = [name for name in env.layout if name.startswith(prefix) and name != exclude]
+    return toward_nearest_body(env, [name for name in env.layout if name.startswith(prefix) and name != exclude])
+
+
+def toward_nearest_body(env: SafetyNavigationEnv, names: list[str]) -> np.ndarray:
+    """The action that drives the robot straight at the nearest of the bodies ``names``."""
     agent = env.world.agent_xpos()[:2]
     targets = env.world.body_xpos(names)[:, :2]
     target = targets[np.argmin(np.linalg.norm(targets - agent, axis=1))]
@@ -101,6 +105,27 @@ def test_adversarial_proposals_never_press_a_wrong_button(shielded: bool) -> Non
         assert presses > 0  # so the shielded case can fail
 
 
+@pytest.mark.parametrize("shielded", [True, False])
+def test_adversarial_proposals_never_touch_a_circling_gremlin(shielded: bool) -> None:
+    """Button 1: driving at the nearest gremlin, which keeps moving; unshielded, the same proposals touch one."""
+    env = SafetyNavigationEnv("Point", "Button", 1)
+    rule = NavigationShieldingRule("Point", "Button", 1)
+    obs, _ = env.reset(seed=3)  # a layout where gremlins held still in the rule's rollouts are touched 52 times
+    gremlins = [f"gremlin{i}obj" for i in range(4)]
+    touches = interventions = 0
+    for _ in range(300):
+        proposal = toward_nearest_body(env, gremlins)
+        if shielded:
+            decision = rule.shield(obs[None], proposal[None])
+            proposal, interventions = decision.actions[0], interventions + int(decision.intervened[0])
+        obs, _, _, _, info = env.step(proposal)
+        touches += info.get("cost_gremlins", 0.0) > 0
+    if shielded:
+        assert touches == 0 and interventions > 0
+    else:
+        assert touches > 0  # so the shielded case can fail
+
+
 def test_ranked_adversarial_candidates_never_reach_a_hazard() -> None:
     """``shield_first_accepted`` on a rule with memory (warm plans): every candidate heads into or near the nearest
     hazard; whichever is executed, the robot never enters one, and alternatives do get executed."""
@@ -169,6 +194,7 @@ def test_the_constraint_covers_only_what_the_level_constrains() -> None:
     )
     assert constraint("Car", "Circle", 2).wall_both_axes and not constraint("Car", "Circle", 1).wall_both_axes
     assert len(constraint("Car", "Button", 1).button_columns) == 4 and constraint("Point", "Button", 1).goal_columns
+    assert len(constraint("Point", "Button", 2).contact_columns) == 6  # its gremlins
     with pytest.raises(ValueError, match="needs no shield"):
         NavigationShieldingRule("Point", "Goal", 0)
 

@@ -18,10 +18,11 @@ the robot's motion changes by about that much when it pushes one. The constraint
   one, a superset of touching it (a vase moves only when touched, so its velocity cost is covered too);
 - **buttons** other than the goal (Button 1 and 2, conservative): the robot within ``button radius + robot radius``
   of one, also in the 10 steps after a press when the env charges none;
+- **gremlins** (Button 1 and 2, predicted): the robot within ``gremlin reach + robot radius +``
+  :data:`GREMLIN_MARGIN` of one where it will be. A gremlin's box is welded to a mocap body that circles on a clock
+  (``Gremlins.mocap_target``), so each rolled step moves its marker by the circle's motion since the state's time;
+  the margin covers the weld's lag. This covers the rule's lookahead, not a gremlin that corners the robot later;
 - **walls** (Circle 1 and 2, exact): ``|x|`` (and ``|y|``) beyond 1.125.
-
-What is not covered: gremlins (they circle; the shield does not predict them). On the Button tasks the rule shields
-the hazards and the wrong buttons.
 """
 
 from __future__ import annotations
@@ -33,10 +34,10 @@ import mujoco
 import numpy as np
 
 from sppo_sb3.envs.navigation.env import SafetyNavigationEnv
-from sppo_sb3.envs.navigation.objects import Buttons, Hazards, Pillars, Sigwalls, Vases
+from sppo_sb3.envs.navigation.objects import Buttons, Gremlins, Hazards, Pillars, Sigwalls, Vases
 from sppo_sb3.envs.navigation.robots import ROBOTS
 from sppo_sb3.envs.navigation.tasks import TASKS, NavigationTask
-from sppo_sb3.envs.navigation.world import FRAME_SKIP, world_xml
+from sppo_sb3.envs.navigation.world import FRAME_SKIP, moved, world_xml
 from sppo_sb3.shield.base import ShieldFailure
 from sppo_sb3.shield.mujoco.model import FULL_STATE, ConstraintSteps, MujocoLayout, StateConstraint
 from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule, lookahead_horizon
@@ -47,6 +48,8 @@ from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule, lookahead_horizon
 LOOKAHEAD_SECONDS = 0.3
 #: a button this close to the goal is the goal button (the env puts the goal on it; buttons keep 0.4 m apart)
 GOAL_ON_BUTTON = 1e-3
+#: metres added to a gremlin's reach for the lag of its box behind the circling mocap body it is welded to
+GREMLIN_MARGIN = 0.05
 
 
 def navigation_task(robot: str, task: str, level: int) -> NavigationTask:
@@ -97,10 +100,11 @@ class NavigationConstraint(StateConstraint):
                 pillars = [mocap_columns(model, name) for name in group.names]
                 contacts += pillars
                 reach += [group.size + task.robot.radius] * len(pillars)
-            elif isinstance(group, Vases):
-                vases = [mocap_columns(model, name) for name in group.names]
-                contacts += vases
-                reach += [group.size * np.sqrt(2) + task.robot.radius] * len(vases)
+            elif isinstance(group, Vases | Gremlins):
+                boxes = [mocap_columns(model, body) for body in moved(group)]
+                contacts += boxes
+                margin = GREMLIN_MARGIN if isinstance(group, Gremlins) else 0.0
+                reach += [group.size * np.sqrt(2) + task.robot.radius + margin] * len(boxes)
             elif isinstance(group, Buttons):
                 buttons = tuple(mocap_columns(model, name) for name in group.names)
                 button_reach, goal = group.size + task.robot.radius, mocap_columns(model, "goal")
@@ -147,7 +151,7 @@ class NavigationConstraint(StateConstraint):
 
 
 def shield_model(task: NavigationTask) -> mujoco.MjModel:
-    """The task's world with static objects as mocap bodies and without gremlins (see the module)."""
+    """The task's world with static objects as mocap bodies and movable ones as markers (see the module)."""
     return mujoco.MjModel.from_xml_string(world_xml(task.robot, task.groups, shield_model=True))
 
 
@@ -270,12 +274,35 @@ class NavigationShieldingRule(MujocoShieldingRule):
             raise ValueError(f"{layout.env_id} constrains nothing the shield covers: it needs no shield (use shield=None).")
         super().__init__(layout, constraint, horizon=horizon, alpha=alpha, n_particles=n_particles, **kwargs)
         self._physics = physics_size(self.model)
+        gremlins = [group for group in definition.groups if isinstance(group, Gremlins) and group.constrained]
+        self._gremlins = gremlins[0] if gremlins else None
+        self._gremlin_columns = (
+            np.array([mocap_columns(self.model, body) for body in moved(gremlins[0])] if gremlins else [], dtype=int).reshape(
+                -1, 2
+            )
+            - self._physics
+        )  # (n, 2): x, y columns within the mocap block
+
+    def mocap_paths(self, states: np.ndarray, nstep: int) -> np.ndarray:
+        """``(M, nstep, 3·nmocap)`` where every object's marker is after each of ``nstep`` physics steps: where it is
+        now, the gremlins moved along their circles by the clock (the state's time, column 0)."""
+        mocap = states[:, self._physics :]
+        paths = np.array(np.broadcast_to(mocap[:, None], (len(states), nstep, mocap.shape[1])))
+        if self._gremlins is not None:
+            times = states[:, :1] + self.model.opt.timestep * np.arange(1, nstep + 1)  # (M, nstep)
+            now = np.stack([np.sin(states[:, 0]), np.cos(states[:, 0])], axis=-1)  # (M, 2)
+            ahead = np.stack([np.sin(times), np.cos(times)], axis=-1)  # (M, nstep, 2)
+            shift = self._gremlins.travel * (ahead - now[:, None])  # Gremlins.mocap_target's motion since now
+            for x, y in self._gremlin_columns:
+                paths[..., x] += shift[..., 0]
+                paths[..., y] += shift[..., 1]
+        return paths
 
     def _rollout(self, states: np.ndarray, ctrl: np.ndarray, **outputs: np.ndarray) -> None:
         """Roll the physics part of the states, the mocap columns fed as controls and copied to the outputs."""
         m, nstep = ctrl.shape[:2]
-        physics, mocap = states[:, : self._physics], states[:, self._physics :]
-        control = np.concatenate([ctrl, np.broadcast_to(mocap[:, None], (m, nstep, mocap.shape[1]))], axis=2)
+        physics, mocap = states[:, : self._physics], self.mocap_paths(states, nstep)
+        control = np.concatenate([ctrl, mocap], axis=2)
         rolled: dict[str, np.ndarray] = {}
         if "state" in outputs:
             rolled["state"] = np.empty((m, nstep, self._physics))
@@ -294,7 +321,7 @@ class NavigationShieldingRule(MujocoShieldingRule):
         )
         if "state" in outputs:
             outputs["state"][..., : self._physics] = rolled["state"]
-            outputs["state"][..., self._physics :] = mocap[:, None]
+            outputs["state"][..., self._physics :] = mocap
 
     def tracked_states(self, obs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The states behind ``obs``, read once from their envs (always known), and the warm plans stored under them."""
