@@ -13,7 +13,14 @@ from sppo_sb3.envs.navigation import SafetyNavigationEnv
 from sppo_sb3.envs.navigation.tasks.button import ButtonTask
 from sppo_sb3.shield import ShieldFailure, ShieldWrapper
 from sppo_sb3.shield.registry import default_shielding_rule
-from sppo_sb3.shield.tasks.navigation import NavigationConstraint, NavigationShieldingRule, navigation_task, shield_model
+from sppo_sb3.shield.tasks.navigation import (
+    GREMLIN_MARGIN,
+    NavigationConstraint,
+    NavigationShieldingRule,
+    mocap_columns,
+    navigation_task,
+    shield_model,
+)
 from sppo_sb3.shield.tasks.navigation import shield_state as to_shield_state
 
 
@@ -103,6 +110,27 @@ def test_adversarial_proposals_never_press_a_wrong_button(shielded: bool) -> Non
         assert presses == 0 and interventions > 0
     else:
         assert presses > 0  # so the shielded case can fail
+
+
+def test_the_rule_predicts_where_the_gremlins_go() -> None:
+    """The rolled gremlin markers follow the env's welded gremlins within the margin added to their reach."""
+    env = SafetyNavigationEnv("Point", "Button", 1)
+    rule = NavigationShieldingRule("Point", "Button", 1)
+    env.reset(seed=0)
+    for _ in range(20):  # the welds settle after reset
+        env.step(np.zeros(2))
+    gremlins = [f"gremlin{i}obj" for i in range(4)]
+    start = to_shield_state(env, rule.model)
+    columns = [mocap_columns(rule.model, body) for body in gremlins]
+    steps = rule.rollout_steps(start[None], np.zeros((1, 15, 2)))  # the rule's lookahead
+    worst, held_still = 0.0, 0.0
+    for k in range(15):
+        env.step(np.zeros(2))
+        actual = env.world.body_xpos(gremlins)[:, :2]
+        predicted = np.array([steps.after[0, k, list(c)] for c in columns])
+        worst = max(worst, float(np.max(np.linalg.norm(predicted - actual, axis=1))))
+        held_still = max(held_still, float(np.max(np.linalg.norm(start[np.array(columns)] - actual, axis=1))))
+    assert worst < GREMLIN_MARGIN < held_still
 
 
 @pytest.mark.parametrize("shielded", [True, False])

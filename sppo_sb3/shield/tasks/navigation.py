@@ -274,14 +274,9 @@ class NavigationShieldingRule(MujocoShieldingRule):
             raise ValueError(f"{layout.env_id} constrains nothing the shield covers: it needs no shield (use shield=None).")
         super().__init__(layout, constraint, horizon=horizon, alpha=alpha, n_particles=n_particles, **kwargs)
         self._physics = physics_size(self.model)
-        gremlins = [group for group in definition.groups if isinstance(group, Gremlins) and group.constrained]
-        self._gremlins = gremlins[0] if gremlins else None
-        self._gremlin_columns = (
-            np.array([mocap_columns(self.model, body) for body in moved(gremlins[0])] if gremlins else [], dtype=int).reshape(
-                -1, 2
-            )
-            - self._physics
-        )  # (n, 2): x, y columns within the mocap block
+        self._gremlins = next((g for g in definition.groups if isinstance(g, Gremlins) and g.constrained), None)
+        columns = [mocap_columns(self.model, body) for body in moved(self._gremlins)] if self._gremlins else []
+        self._gremlin_columns = np.array(columns, dtype=int).reshape(-1, 2) - self._physics  # (n, 2) in the mocap block
 
     def mocap_paths(self, states: np.ndarray, nstep: int) -> np.ndarray:
         """``(M, nstep, 3·nmocap)`` where every object's marker is after each of ``nstep`` physics steps: where it is
