@@ -75,12 +75,13 @@ def resolved_hyperparameters(model_path: Path) -> dict[str, Any]:
     return {key: value for key, value in resolved.items() if value is not None}
 
 
-def run_provenance(model_path: Path | None) -> dict[str, Any]:
+def run_provenance(revision: dict[str, Any], model_path: Path | None) -> dict[str, Any]:
     """The commit, the installed packages and, where the run saved a model, its resolved hyperparameters.
 
+    :param revision: :func:`source_revision` read when the run started: the checkout may move on while it trains.
     :param model_path: the run's final model (``None``: none was saved).
     """
-    record: dict[str, Any] = {**source_revision(), "packages": package_versions()}
+    record: dict[str, Any] = {**revision, "packages": package_versions()}
     if model_path is not None:
         record["hyperparameters"] = resolved_hyperparameters(model_path)
     return record

@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from sppo_sb3.experiments import layout
-from sppo_sb3.experiments.provenance import run_provenance
+from sppo_sb3.experiments.provenance import run_provenance, source_revision
 from sppo_sb3.experiments.spec import RunSpec
 from sppo_sb3.experiments.summary import (
     final_model_path,
@@ -87,6 +87,7 @@ def execute(spec_dict: dict[str, Any], work_dir: str | None = None) -> dict[str,
             config_path.write_text(spec.config_text)
         cmd = train_command(spec, zoo_dir, config_path)
         env = {**os.environ, "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
+        revision = source_revision()  # the code the run executes, before the checkout can move on
         start = time.perf_counter()
         with open(root / layout.LOG_FILE, "w") as log:
             log.write(shlex.join(cmd) + "\n")
@@ -100,7 +101,7 @@ def execute(spec_dict: dict[str, Any], work_dir: str | None = None) -> dict[str,
         if proc.returncode == 0:
             curve = read_monitor_curve(zoo_dir)
             safety = model_safety_summary(zoo_dir)
-            provenance = run_provenance(final_model_path(zoo_dir))
+            provenance = run_provenance(revision, final_model_path(zoo_dir))
             interventions = monitor_interventions(zoo_dir)
             timesteps = model_timesteps(zoo_dir)
             result["summary"] = summarize(spec, curve, safety, wall_s, cmd, timesteps, provenance, interventions)

@@ -11,13 +11,14 @@ import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 import pytest
 import yaml
 from tiny_hyperparams import tiny_pdo_yml
 
-from sppo_sb3.experiments import benchmark, configs, display, grid, layout, plot, stats, tables
+from sppo_sb3.experiments import benchmark, configs, display, grid, layout, plot, provenance, runner, stats, tables
 from sppo_sb3.experiments.spec import run_name
 
 SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
@@ -115,6 +116,32 @@ def test_runner_writes_curves_and_summaries(grid_out: Path) -> None:
             assert len(provenance["commit"]) == 40 and isinstance(provenance["dirty"], bool)
             assert provenance["packages"]["torch"] and provenance["packages"]["stable-baselines3"]
             assert provenance["hyperparameters"]["seed"] == seed and 0 < provenance["hyperparameters"]["gamma"] < 1
+
+
+def test_provenance_is_the_code_a_run_started_with(
+    tiny_hyperparams: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The checkout moves on (a commit) while a run trains: its summary still names the commit it started from."""
+    moved = {"after_training": False}
+    started, later = {"commit": "a" * 40, "dirty": False}, {"commit": "b" * 40, "dirty": False}
+    monkeypatch.setattr(provenance, "source_revision", lambda *args: later if moved["after_training"] else started)
+    if hasattr(runner, "source_revision"):
+        monkeypatch.setattr(runner, "source_revision", provenance.source_revision)
+    real_run = subprocess.run
+
+    def train_then_commit(*args: Any, **kwargs: Any) -> subprocess.CompletedProcess:
+        done = real_run(*args, **kwargs)
+        moved["after_training"] = True
+        return done
+
+    monkeypatch.setattr(runner.subprocess, "run", train_then_commit)
+    args = _grid_args(tmp_path, tiny_hyperparams)
+    args[args.index("--algos") + 1 : args.index("--tasks")] = ["pdo"]
+    args[args.index("--seeds") + 1] = "1"
+    args[args.index("--workers") + 1] = "1"
+    assert benchmark.main(args) == 0
+    summary = json.loads((tmp_path / TASK / "pdo" / "seed_0" / "summary.json").read_text())
+    assert summary["provenance"]["commit"] == started["commit"]
 
 
 def test_runner_skips_finished_runs(grid_out: Path, tiny_hyperparams: Path, capsys: pytest.CaptureFixture[str]) -> None:
