@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -90,22 +92,36 @@ def test_adversarial_proposals_never_reach_a_static_constraint(env_id: str, pref
     assert interventions > 0  # the proposals did head into the constraint
 
 
-@pytest.mark.parametrize("shielded", [True, False])
-def test_adversarial_proposals_never_press_a_wrong_button(shielded: bool) -> None:
-    """Button 1: driving at the nearest button that is not the goal; unshielded, the same proposals press one."""
+def drive_on_button1(
+    seed: int, adversary: Callable[[SafetyNavigationEnv], np.ndarray], cost_key: str, shielded: bool
+) -> tuple[int, int]:
+    """300 steps of PointButton1 under ``adversary``'s proposals, through the rule or not: the steps that paid
+    ``cost_key`` and the rule's interventions."""
     env = SafetyNavigationEnv("Point", "Button", 1)
     rule = NavigationShieldingRule("Point", "Button", 1)
-    obs, _ = env.reset(seed=1)
-    presses = interventions = 0
+    obs, _ = env.reset(seed=seed)
+    costly = interventions = 0
     for _ in range(300):
-        task = env.task
-        assert isinstance(task, ButtonTask)
-        proposal = toward_nearest(env, "button", exclude=f"button{task.goal_button}")
+        proposal = adversary(env)
         if shielded:
             decision = rule.shield(obs[None], proposal[None])
             proposal, interventions = decision.actions[0], interventions + int(decision.intervened[0])
         obs, _, _, _, info = env.step(proposal)
-        presses += info.get("cost_buttons", 0.0) > 0
+        costly += info.get(cost_key, 0.0) > 0
+    return costly, interventions
+
+
+def toward_a_wrong_button(env: SafetyNavigationEnv) -> np.ndarray:
+    """Drive at the nearest button that is not the goal."""
+    task = env.task
+    assert isinstance(task, ButtonTask)
+    return toward_nearest(env, "button", exclude=f"button{task.goal_button}")
+
+
+@pytest.mark.parametrize("shielded", [True, False])
+def test_adversarial_proposals_never_press_a_wrong_button(shielded: bool) -> None:
+    """Button 1: driving at the nearest button that is not the goal; unshielded, the same proposals press one."""
+    presses, interventions = drive_on_button1(1, toward_a_wrong_button, "cost_buttons", shielded)
     if shielded:
         assert presses == 0 and interventions > 0
     else:
@@ -136,18 +152,9 @@ def test_the_rule_predicts_where_the_gremlins_go() -> None:
 @pytest.mark.parametrize("shielded", [True, False])
 def test_adversarial_proposals_never_touch_a_circling_gremlin(shielded: bool) -> None:
     """Button 1: driving at the nearest gremlin, which keeps moving; unshielded, the same proposals touch one."""
-    env = SafetyNavigationEnv("Point", "Button", 1)
-    rule = NavigationShieldingRule("Point", "Button", 1)
-    obs, _ = env.reset(seed=3)  # a layout where gremlins held still in the rule's rollouts are touched 52 times
     gremlins = [f"gremlin{i}obj" for i in range(4)]
-    touches = interventions = 0
-    for _ in range(300):
-        proposal = toward_nearest_body(env, gremlins)
-        if shielded:
-            decision = rule.shield(obs[None], proposal[None])
-            proposal, interventions = decision.actions[0], interventions + int(decision.intervened[0])
-        obs, _, _, _, info = env.step(proposal)
-        touches += info.get("cost_gremlins", 0.0) > 0
+    # seed 3: a layout where gremlins held still in the rule's rollouts are touched 52 times
+    touches, interventions = drive_on_button1(3, lambda env: toward_nearest_body(env, gremlins), "cost_gremlins", shielded)
     if shielded:
         assert touches == 0 and interventions > 0
     else:
