@@ -125,8 +125,7 @@ def test_provenance_is_the_code_a_run_started_with(
     moved = {"after_training": False}
     started, later = {"commit": "a" * 40, "dirty": False}, {"commit": "b" * 40, "dirty": False}
     monkeypatch.setattr(provenance, "source_revision", lambda *args: later if moved["after_training"] else started)
-    if hasattr(runner, "source_revision"):
-        monkeypatch.setattr(runner, "source_revision", provenance.source_revision)
+    monkeypatch.setattr(runner, "source_revision", provenance.source_revision)
     real_run = subprocess.run
 
     def train_then_commit(*args: Any, **kwargs: Any) -> subprocess.CompletedProcess:

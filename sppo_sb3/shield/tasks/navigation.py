@@ -282,8 +282,9 @@ class NavigationShieldingRule(MujocoShieldingRule):
         """``(M, nstep, 3·nmocap)`` where every object's marker is after each of ``nstep`` physics steps: where it is
         now, the gremlins moved along their circles by the clock (the state's time, column 0)."""
         mocap = states[:, self._physics :]
-        paths = np.array(np.broadcast_to(mocap[:, None], (len(states), nstep, mocap.shape[1])))
+        paths = np.broadcast_to(mocap[:, None], (len(states), nstep, mocap.shape[1]))
         if self._gremlins is not None:
+            paths = paths.copy()  # only here: the rollouts' controls are a copy of it anyway
             times = states[:, :1] + self.model.opt.timestep * np.arange(1, nstep + 1)  # (M, nstep)
             now = np.stack([np.sin(states[:, 0]), np.cos(states[:, 0])], axis=-1)  # (M, 2)
             ahead = np.stack([np.sin(times), np.cos(times)], axis=-1)  # (M, nstep, 2)
