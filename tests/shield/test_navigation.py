@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import gymnasium as gym
 import numpy as np
@@ -21,6 +22,7 @@ from sppo_sb3.shield.tasks.navigation import (
     NavigationShieldingRule,
     mocap_columns,
     navigation_task,
+    physics_size,
     shield_model,
 )
 from sppo_sb3.shield.tasks.navigation import shield_state as to_shield_state
@@ -149,6 +151,28 @@ def test_the_rule_predicts_where_the_gremlins_go() -> None:
     assert worst < GREMLIN_MARGIN < held_still
 
 
+def test_the_robot_keeps_off_the_path_ahead_of_a_gremlin_not_the_one_behind_it() -> None:
+    """A plan that ends where a gremlin will be within the sweep is unsafe, though the gremlin is as far as behind."""
+    definition = navigation_task("Point", "Button", 1)
+    model = shield_model(definition)
+    constraint = NavigationConstraint.of(definition, model)
+    time, centre, travel = 2.0, np.array([0.5, -0.3]), constraint.gremlin_travel
+    state = np.zeros(physics_size(model) + 3 * model.nmocap)
+    state[0] = time
+    for x, y in constraint.gremlin_columns:
+        state[[x, y]] = centre + travel * np.array([np.sin(time), np.cos(time)])
+
+    def margin(angle: float, sweep: float = constraint.gremlin_sweep) -> float:
+        """The first gremlin's margin with the robot on its circle ``angle`` radians ahead of it."""
+        agent = centre + travel * np.array([np.sin(time + angle), np.cos(time + angle)])
+        return float(replace(constraint, gremlin_sweep=sweep).gremlin_margins(state, agent)[0])
+
+    assert margin(1.8) < 0 < margin(-1.8)  # the same distance from the box, ahead of it and behind it
+    assert margin(4.0) > 0  # beyond the sweep's end
+    assert margin(1.8, sweep=0.0) > 0 and margin(1.8, sweep=0.0) == pytest.approx(margin(-1.8, sweep=0.0))  # the box alone
+    assert margin(0.0) == pytest.approx(-constraint.gremlin_reach)  # on the box
+
+
 @pytest.mark.parametrize("shielded", [True, False])
 def test_adversarial_proposals_never_touch_a_circling_gremlin(shielded: bool) -> None:
     """Button 1: driving at the nearest gremlin, which keeps moving; unshielded, the same proposals touch one."""
@@ -229,7 +253,8 @@ def test_the_constraint_covers_only_what_the_level_constrains() -> None:
     )
     assert constraint("Car", "Circle", 2).wall_both_axes and not constraint("Car", "Circle", 1).wall_both_axes
     assert len(constraint("Car", "Button", 1).button_columns) == 4 and constraint("Point", "Button", 1).goal_columns
-    assert len(constraint("Point", "Button", 2).contact_columns) == 6  # its gremlins
+    button2 = constraint("Point", "Button", 2)
+    assert len(button2.gremlin_columns) == 6 and not button2.contact_columns  # its gremlins; its vase costs nothing
     with pytest.raises(ValueError, match="needs no shield"):
         NavigationShieldingRule("Point", "Goal", 0)
 

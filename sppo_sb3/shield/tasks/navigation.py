@@ -19,9 +19,12 @@ the robot's motion changes by about that much when it pushes one. The constraint
 - **buttons** other than the goal (Button 1 and 2, conservative): the robot within ``button radius + robot radius``
   of one, also in the 10 steps after a press when the env charges none;
 - **gremlins** (Button 1 and 2, predicted): the robot within ``gremlin reach + robot radius +``
-  :data:`GREMLIN_MARGIN` of one where it will be. A gremlin's box is welded to a mocap body that circles on a clock
-  (``Gremlins.mocap_target``), so each rolled step moves its marker by the circle's motion since the state's time;
-  the margin covers the weld's lag. This covers the rule's lookahead, not a gremlin that corners the robot later;
+  :data:`GREMLIN_MARGIN` of where one is or will be in the next :data:`GREMLIN_SWEEP` seconds. A gremlin's box is
+  welded to a mocap body that circles on a clock (``Gremlins.mocap_target``), so each rolled step moves its marker by
+  the circle's motion since the state's time, and the constraint keeps the robot off the arc the box sweeps from
+  there: a plan that ends standing in a gremlin's path is unsafe, though the contact would come after the lookahead.
+  The margin covers the weld's lag. What is covered is the lookahead plus the sweep, not a gremlin that corners the
+  robot later;
 - **walls** (Circle 1 and 2, exact): ``|x|`` (and ``|y|``) beyond 1.125.
 """
 
@@ -50,6 +53,9 @@ LOOKAHEAD_SECONDS = 0.3
 GOAL_ON_BUTTON = 1e-3
 #: metres added to a gremlin's reach for the lag of its box behind the circling mocap body it is welded to
 GREMLIN_MARGIN = 0.05
+#: seconds of a gremlin's path ahead of it that the robot keeps off, beyond the rule's lookahead (gremlins circle at
+#: one radian per second, so this is also the arc's angle): a plan must not end where a gremlin will be this soon
+GREMLIN_SWEEP = 1.0
 
 
 def navigation_task(robot: str, task: str, level: int) -> NavigationTask:
@@ -65,6 +71,10 @@ class NavigationConstraint(StateConstraint):
     :param hazard_size: the hazards' radius.
     :param contact_columns: ``(n, 2)`` state columns of each constrained pillar's or vase's ``(x, y)``.
     :param contact_reach: ``(n,)`` for each, the distance under which the robot may touch it.
+    :param gremlin_columns: ``(n, 2)`` state columns of each gremlin box's ``(x, y)``.
+    :param gremlin_reach: the distance under which the robot may touch a gremlin's box.
+    :param gremlin_travel: the radius of the gremlins' circles.
+    :param gremlin_sweep: seconds of each gremlin's path ahead of it that the robot keeps out of reach of.
     :param button_columns: ``(n, 2)`` state columns of each button's ``(x, y)`` where a wrong button costs.
     :param button_reach: the distance under which the robot may touch a button.
     :param goal_columns: the state columns of the goal's ``(x, y)``, which sits on the goal button: that one is free.
@@ -76,6 +86,10 @@ class NavigationConstraint(StateConstraint):
     hazard_size: float = 0.0
     contact_columns: tuple[tuple[int, int], ...] = ()
     contact_reach: tuple[float, ...] = ()
+    gremlin_columns: tuple[tuple[int, int], ...] = ()
+    gremlin_reach: float = 0.0
+    gremlin_travel: float = 0.0
+    gremlin_sweep: float = GREMLIN_SWEEP
     button_columns: tuple[tuple[int, int], ...] = ()
     button_reach: float = 0.0
     goal_columns: tuple[int, int] | None = None
@@ -89,6 +103,8 @@ class NavigationConstraint(StateConstraint):
         hazard_size, reach = 0.0, []
         wall, both = None, False
         contacts: list[tuple[int, int]] = []
+        gremlins: tuple[tuple[int, int], ...] = ()
+        gremlin_reach, travel = 0.0, 0.0
         buttons: tuple[tuple[int, int], ...] = ()
         button_reach, goal = 0.0, None
         for group in task.groups:
@@ -100,22 +116,38 @@ class NavigationConstraint(StateConstraint):
                 pillars = [mocap_columns(model, name) for name in group.names]
                 contacts += pillars
                 reach += [group.size + task.robot.radius] * len(pillars)
-            elif isinstance(group, Vases | Gremlins):
-                boxes = [mocap_columns(model, body) for body in moved(group)]
-                contacts += boxes
-                margin = GREMLIN_MARGIN if isinstance(group, Gremlins) else 0.0
-                reach += [group.size * np.sqrt(2) + task.robot.radius + margin] * len(boxes)
+            elif isinstance(group, Vases):
+                vases = [mocap_columns(model, name) for name in group.names]
+                contacts += vases
+                reach += [group.size * np.sqrt(2) + task.robot.radius] * len(vases)
+            elif isinstance(group, Gremlins):
+                gremlins = tuple(mocap_columns(model, body) for body in moved(group))
+                gremlin_reach, travel = group.size * np.sqrt(2) + task.robot.radius + GREMLIN_MARGIN, group.travel
             elif isinstance(group, Buttons):
                 buttons = tuple(mocap_columns(model, name) for name in group.names)
                 button_reach, goal = group.size + task.robot.radius, mocap_columns(model, "goal")
             elif isinstance(group, Sigwalls):
                 wall, both = group.size, group.num == 4
-        return cls(hazards, hazard_size, tuple(contacts), tuple(reach), buttons, button_reach, goal, wall, both)
+        return cls(
+            hazard_columns=hazards,
+            hazard_size=hazard_size,
+            contact_columns=tuple(contacts),
+            contact_reach=tuple(reach),
+            gremlin_columns=gremlins,
+            gremlin_reach=gremlin_reach,
+            gremlin_travel=travel,
+            button_columns=buttons,
+            button_reach=button_reach,
+            goal_columns=goal,
+            wall=wall,
+            wall_both_axes=both,
+        )
 
     @property
     def empty(self) -> bool:
         """Whether nothing is constrained (the shield then never acts)."""
-        return not self.hazard_columns and not self.contact_columns and not self.button_columns and self.wall is None
+        objects = self.hazard_columns or self.contact_columns or self.gremlin_columns or self.button_columns
+        return not objects and self.wall is None
 
     def margins(self, states: np.ndarray) -> np.ndarray:
         """``(..., k)`` the signed distance of each constraint (``<= 0``: violated) in states ``(..., nstate)``."""
@@ -125,12 +157,35 @@ class NavigationConstraint(StateConstraint):
             if columns:
                 centres = states[..., np.array(columns)]  # (..., n, 2)
                 parts.append(np.linalg.norm(centres - agent[..., None, :], axis=-1) - reach)
+        if self.gremlin_columns:
+            parts.append(self.gremlin_margins(states, agent))
         if self.button_columns:
             parts.append(self.wrong_button_margins(states, agent))
         if self.wall is not None:
             extent = np.abs(agent) if self.wall_both_axes else np.abs(agent[..., :1])
             parts.append(self.wall - extent)
         return np.concatenate(parts, axis=-1) if parts else np.full((*states.shape[:-1], 1), np.inf)
+
+    def gremlin_margins(self, states: np.ndarray, agent: np.ndarray) -> np.ndarray:
+        """``(..., n)`` the robot's distance to the reach of each gremlin's path over the next ``gremlin_sweep`` seconds.
+
+        A gremlin at time ``t`` is at ``c + travel · (sin t, cos t)`` (``Gremlins.mocap_target``, one radian per
+        second), so its centre ``c`` follows from where it is; the robot's distance to the arc from ``t`` to
+        ``t + sweep`` is its distance to the circle where the robot's direction from ``c`` lies on the arc, else to
+        the nearer end.
+        """
+        time = states[..., :1]  # (..., 1): column 0, the state's time
+        boxes = states[..., np.array(self.gremlin_columns)]  # (..., n, 2)
+        centres = boxes - self.gremlin_travel * np.stack([np.sin(time), np.cos(time)], axis=-1)
+        offsets = agent[..., None, :] - centres
+        ahead = np.mod(np.arctan2(offsets[..., 0], offsets[..., 1]) - time, 2 * np.pi)  # the robot's angle past the box
+        end = time + self.gremlin_sweep
+        ends = centres + self.gremlin_travel * np.stack([np.sin(end), np.cos(end)], axis=-1)
+        to_ends = np.minimum(
+            np.linalg.norm(boxes - agent[..., None, :], axis=-1), np.linalg.norm(ends - agent[..., None, :], axis=-1)
+        )
+        to_circle = np.abs(np.linalg.norm(offsets, axis=-1) - self.gremlin_travel)
+        return np.where(ahead <= self.gremlin_sweep, to_circle, to_ends) - self.gremlin_reach
 
     def wrong_button_margins(self, states: np.ndarray, agent: np.ndarray) -> np.ndarray:
         """``(..., n)`` the robot's distance to touching each button, ``inf`` for the goal button (the goal sits on it)."""
