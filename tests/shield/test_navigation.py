@@ -38,7 +38,12 @@ def toward_nearest_body(env: SafetyNavigationEnv, names: list[str]) -> np.ndarra
     """The action that drives the robot straight at the nearest of the bodies ``names``."""
     agent = env.world.agent_xpos()[:2]
     targets = env.world.body_xpos(names)[:, :2]
-    target = targets[np.argmin(np.linalg.norm(targets - agent, axis=1))]
+    return toward_point(env, targets[np.argmin(np.linalg.norm(targets - agent, axis=1))])
+
+
+def toward_point(env: SafetyNavigationEnv, target: np.ndarray) -> np.ndarray:
+    """The action that drives the robot straight at the point ``target`` ``(x, y)``."""
+    agent = env.world.agent_xpos()[:2]
     ego_x, ego_y = (np.r_[target - agent, 0.0] @ env.world.agent_xmat())[:2]
     if env.world.robot.name == "Point":  # drives along its x axis; the second control turns it counterclockwise
         return np.array([1.0, float(np.clip(3 * np.arctan2(ego_y, ego_x), -1, 1))])
@@ -205,6 +210,36 @@ def test_ranked_adversarial_candidates_never_reach_a_hazard() -> None:
             obs, _ = env.reset()
     assert costs == 0
     assert -1 in chosen and any(k > 0 for k in chosen)  # the backup and an alternative both ran
+
+
+def steps_beyond_the_wall(shielded: bool, steps: int = 60) -> tuple[list[bool], int]:
+    """PointCircle1, seed 0: drive out through the wall at ``x = 1.125`` unshielded, then keep driving outwards for
+    ``steps`` steps; whether each of those cost, and the interventions."""
+    env = SafetyNavigationEnv("Point", "Circle", 1)
+    rule = NavigationShieldingRule("Point", "Circle", 1)
+    obs, _ = env.reset(seed=0)
+    outside, cost = np.array([3.0, 0.0]), 0.0
+    while cost == 0:
+        obs, _, _, _, info = env.step(toward_point(env, outside))
+        cost = info["cost"]
+    costly, interventions = [], 0
+    for _ in range(steps):
+        proposal = toward_point(env, outside)
+        if shielded:
+            decision = rule.shield(obs[None], proposal[None])
+            proposal, interventions = decision.actions[0], interventions + int(decision.intervened[0])
+        obs, _, _, _, info = env.step(proposal)
+        costly.append(info["cost"] > 0)
+    return costly, interventions
+
+
+def test_beyond_a_wall_the_shield_leads_the_robot_back() -> None:
+    """Inside the unsafe set every plan pays the violation; the steps each spends inside, and how deep, rank them, so
+    the shield replaces the proposals that go on out (eq. 12 on the absorbing tail alone would pass them: ``Ā = 0``)."""
+    unshielded, _ = steps_beyond_the_wall(shielded=False)
+    shielded, interventions = steps_beyond_the_wall(shielded=True)
+    assert all(unshielded)  # the proposals alone stay out
+    assert interventions > 0 and sum(shielded) < 45 and not any(shielded[-10:])  # back inside, and it stays
 
 
 def test_random_proposals_stay_safe_on_circle_walls() -> None:

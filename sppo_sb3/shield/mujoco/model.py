@@ -77,6 +77,12 @@ class StateConstraint(ABC):
     def distance(self, steps: ConstraintSteps) -> np.ndarray:
         """``(..., T)`` distances ``>= 0`` from each step's outcome to the unsafe set (0 at or inside it)."""
 
+    def depth(self, steps: ConstraintSteps) -> np.ndarray | float:
+        """``(..., T)`` how far inside the unsafe set each step's outcome is (``>= 0``; 0 outside), in the units of
+        :meth:`distance`: the rule leads a robot that is inside out the shortest way. Default: 0 (then only the steps
+        spent inside rank the ways out)."""
+        return 0.0
+
 
 @dataclass(frozen=True)
 class EpisodeEnd:

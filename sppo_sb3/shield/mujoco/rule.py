@@ -46,7 +46,12 @@ class MujocoShieldingRule(ShieldingRule):
     Costs: along a rollout ``s_0 = s, s_1, ...`` (env steps of ``frame_skip`` physics steps), the discounted shaped cost
     ``J = Σ_{t<H} γ^(t+1) ĉ_(t+1)`` with ``ĉ`` of eq. 18 on the constraint's distance after each step. The unsafe set
     is absorbing: at the first step ``t`` that the constraint calls unsafe the rest of the sum is replaced by
-    ``γ^(t+1) / (1 - γ)`` (``ĉ = 1`` forever), as in the Point rule. Where the task ends its episodes on its own
+    ``γ^(t+1) / (1 - γ)`` (``ĉ = 1`` forever), as in the Point rule. Deviation: each later step the rollout is still
+    in the unsafe set adds ``γ^(t+1) (1 + depth / α)``, its depth inside (:meth:`StateConstraint.depth
+    <sppo_sb3.shield.mujoco.model.StateConstraint.depth>`) in units of the band. The tail alone prices every plan from
+    inside the unsafe set alike, so that ``Ā = 0`` there and eq. 12 would pass any proposal, also one that goes
+    deeper; where a violation does not end the episode (the velocity and navigation tasks), the steps spent inside and
+    their depth rank the plans, and the backup leads out. Where the task ends its episodes on its own
     (:class:`~sppo_sb3.shield.mujoco.model.EpisodeEnd`: a fall), the sum stops after the step that ends the episode: a
     fallen robot's sliding costs nothing in the env, and counting it would make every plan look as bad as a violation,
     so that ``Ā ≈ 0`` and the shield let proposals through. Every ``J`` is ``>= 0``.
@@ -225,21 +230,26 @@ class MujocoShieldingRule(ShieldingRule):
         return self.layout.obs_from_states(self.next_states(states, actions))
 
     def discounted_cost(self, steps: ConstraintSteps) -> np.ndarray:
-        """``J = Σ_t γ^(t+1) ĉ_(t+1)`` (eq. 18) with the absorbing tail ``γ^(t+1)/(1-γ)`` at the first violation.
+        """``J = Σ_t γ^(t+1) ĉ_(t+1)`` (eq. 18) with the absorbing tail ``γ^(t+1)/(1-γ)`` at the first violation, and
+        ``γ^(t+1) (1 + depth / α)`` for each later step still in the unsafe set (see the class).
 
         :param steps: ``(..., T)`` rolled env steps.
         :return: ``(...)`` discounted costs, ``>= 0``.
         """
         unsafe = np.asarray(self.constraint.is_unsafe(steps), dtype=bool)
-        counted = (np.cumsum(unsafe, axis=-1) - unsafe) == 0  # no violation strictly before t
+        before_violation = (np.cumsum(unsafe, axis=-1) - unsafe) == 0  # no violation strictly before t
+        live = np.ones_like(unsafe)
         end = self.layout.episode_end
         if end is not None:  # nothing costs after the step that ends the episode (a fall)
             ended = end.ended(steps.qpos(steps.after), steps.qvel(steps.after))
-            counted &= (np.cumsum(ended, axis=-1) - ended) == 0
+            live = (np.cumsum(ended, axis=-1) - ended) == 0
         discount = self.gamma ** np.arange(1, unsafe.shape[-1] + 1)
         cost = shaped_cost(self.constraint.distance(steps), self.alpha)
         step = np.where(unsafe, discount / (1.0 - self.gamma), cost * discount)
-        return np.sum(np.where(counted, step, 0.0), axis=-1)
+        absorbed = np.sum(np.where(before_violation & live, step, 0.0), axis=-1)
+        depth = np.asarray(self.constraint.depth(steps)) / (self.alpha if self.alpha > 0 else 1.0)
+        lingering = np.sum(np.where(unsafe & ~before_violation & live, discount * (1.0 + depth), 0.0), axis=-1)
+        return absorbed + lingering
 
     def plan_costs(self, states: np.ndarray, plans: np.ndarray, first_action: np.ndarray | None = None) -> np.ndarray:
         """``J`` of each rollout "``first_action`` (if given), then ``plans``" from ``states``.

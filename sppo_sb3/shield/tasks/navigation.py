@@ -204,6 +204,9 @@ class NavigationConstraint(StateConstraint):
     def distance(self, steps: ConstraintSteps) -> np.ndarray:
         return np.maximum(np.min(self.margins(steps.after), axis=-1), 0.0)
 
+    def depth(self, steps: ConstraintSteps) -> np.ndarray:
+        return np.maximum(-np.min(self.margins(steps.after), axis=-1), 0.0)
+
 
 def shield_model(task: NavigationTask) -> mujoco.MjModel:
     """The task's world with static objects as mocap bodies and movable ones as markers (see the module)."""

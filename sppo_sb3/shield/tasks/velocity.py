@@ -89,6 +89,9 @@ class VelocityConstraint(StateConstraint):
     def distance(self, steps: ConstraintSteps) -> np.ndarray:
         return velocity_distance_to_unsafe(self.velocity(steps), self.threshold)
 
+    def depth(self, steps: ConstraintSteps) -> np.ndarray:
+        return np.maximum(self.velocity(steps) - self.threshold, 0.0)
+
 
 def velocity_constraint(task: VelocityTask) -> VelocityConstraint:
     """The constraint of a Safety-Gymnasium velocity task (:data:`sppo_sb3.envs.velocity.VELOCITY_TASKS`)."""
