@@ -7,6 +7,7 @@ Gymnasium's own ``*-v4`` envs are the tasks here (with the velocity constraints 
 from __future__ import annotations
 
 import pickle
+from dataclasses import replace
 from pathlib import Path
 
 import gymnasium as gym
@@ -88,7 +89,8 @@ def test_state_rebuilt_from_the_observation_is_the_envs(env_id: str) -> None:
 @pytest.mark.parametrize("env_id", list(VELOCITY))
 def test_velocity_is_the_envs_displacement_over_dt(env_id: str) -> None:
     """The constraint's velocity of a rolled step is the displacement of the env's states over ``dt`` (planar speed;
-    torso, mass centre: from the kinematics of the states themselves, not of RK4's last stage, which the envs read)."""
+    torso, mass centre: from the kinematics of the states themselves, not of RK4's last stage, which the envs read),
+    and its depth inside the unsafe set the excess over the threshold."""
     env = gym.make(env_id)
     constraint = VELOCITY[env_id]
     rule = small_rule(env_id, constraint)
@@ -116,6 +118,9 @@ def test_velocity_is_the_envs_displacement_over_dt(env_id: str) -> None:
     steps = rule.rollout_steps(states, np.asarray(actions, dtype=np.float64)[None])
     np.testing.assert_allclose(constraint.velocity(steps)[0], measured, atol=1e-7)
     np.testing.assert_array_equal(constraint.is_unsafe(steps)[0], np.asarray(measured) > constraint.threshold)
+    tight = replace(constraint, threshold=1e-3)  # some of the random steps are inside it (not Hopper's, Walker2d's)
+    depth = tight.depth(steps)[0]
+    np.testing.assert_allclose(depth, np.maximum(np.asarray(measured) - tight.threshold, 0), atol=1e-7)
 
 
 # ---------------------------------------------------------------------------------------------- decisions
