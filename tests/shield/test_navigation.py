@@ -135,6 +135,43 @@ def test_adversarial_proposals_never_press_a_wrong_button(shielded: bool) -> Non
         assert presses > 0  # so the shielded case can fail
 
 
+def creep_at(env: SafetyNavigationEnv, button: str, rule: NavigationShieldingRule | None, steps: int = 40) -> tuple[int, int]:
+    """Creep at ``button`` for ``steps`` steps, behind ``rule`` if given: the button presses that cost, and the
+    interventions."""
+    obs = env.last_obs
+    assert obs is not None
+    costly = interventions = 0
+    for _ in range(steps):
+        proposal = 0.3 * toward_nearest_body(env, [button])
+        if rule is not None:
+            decision = rule.shield(obs[None], proposal[None])
+            proposal, interventions = decision.actions[0], interventions + int(decision.intervened[0])
+        obs, _, _, _, info = env.step(proposal)
+        costly += info.get("cost_buttons", 0.0) > 0
+    return costly, interventions
+
+
+def test_the_robot_leaves_the_button_it_pressed() -> None:
+    """PointButton1, seed 2: the robot drives at the goal button and presses it, and the goal moves to another button;
+    the pressed one becomes a wrong one once the env's 10-step delay is over, with the robot on it, inside the unsafe
+    set. Creeping on at it, the rule leads the robot off it; alone (or with eq. 12 on the absorbing tail alone, which
+    passes every proposal there) the robot presses it 30 times in 40 steps."""
+    env = SafetyNavigationEnv("Point", "Button", 1)
+    rule = NavigationShieldingRule("Point", "Button", 1)
+    env.reset(seed=2)
+    task = env.task
+    assert isinstance(task, ButtonTask)
+    goal = task.goal_button
+    while task.goal_button == goal:
+        env.step(toward_nearest_body(env, [f"button{goal}"]))
+    pressed = env.get_state()
+    alone, _ = creep_at(env, f"button{goal}", None)
+    env.set_state(pressed)
+    shielded, interventions = creep_at(env, f"button{goal}", rule)
+    assert alone > 0  # so the shielded case can fail
+    assert shielded == 0 and interventions > 0
+
+
 def test_the_rule_predicts_where_the_gremlins_go() -> None:
     """The rolled gremlin markers follow the env's welded gremlins within the margin added to their reach."""
     env = SafetyNavigationEnv("Point", "Button", 1)
