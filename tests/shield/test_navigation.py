@@ -99,23 +99,38 @@ def test_adversarial_proposals_never_reach_a_static_constraint(env_id: str, pref
     assert interventions > 0  # the proposals did head into the constraint
 
 
+def run_proposals(
+    env: SafetyNavigationEnv,
+    propose: Callable[[SafetyNavigationEnv], np.ndarray],
+    rule: NavigationShieldingRule | None,
+    steps: int,
+    cost_key: str = "cost",
+) -> tuple[list[bool], int]:
+    """``steps`` steps of ``env`` from where it is under ``propose``'s proposals, through ``rule`` if given: whether
+    each step paid ``cost_key``, and the rule's interventions."""
+    obs = env.last_obs
+    assert obs is not None
+    costly, interventions = [], 0
+    for _ in range(steps):
+        proposal = propose(env)
+        if rule is not None:
+            decision = rule.shield(obs[None], proposal[None])
+            proposal, interventions = decision.actions[0], interventions + int(decision.intervened[0])
+        obs, _, _, _, info = env.step(proposal)
+        costly.append(info.get(cost_key, 0.0) > 0)
+    return costly, interventions
+
+
 def drive_on_button1(
     seed: int, adversary: Callable[[SafetyNavigationEnv], np.ndarray], cost_key: str, shielded: bool
 ) -> tuple[int, int]:
     """300 steps of PointButton1 under ``adversary``'s proposals, through the rule or not: the steps that paid
     ``cost_key`` and the rule's interventions."""
     env = SafetyNavigationEnv("Point", "Button", 1)
-    rule = NavigationShieldingRule("Point", "Button", 1)
-    obs, _ = env.reset(seed=seed)
-    costly = interventions = 0
-    for _ in range(300):
-        proposal = adversary(env)
-        if shielded:
-            decision = rule.shield(obs[None], proposal[None])
-            proposal, interventions = decision.actions[0], interventions + int(decision.intervened[0])
-        obs, _, _, _, info = env.step(proposal)
-        costly += info.get(cost_key, 0.0) > 0
-    return costly, interventions
+    env.reset(seed=seed)
+    rule = NavigationShieldingRule("Point", "Button", 1) if shielded else None
+    costly, interventions = run_proposals(env, adversary, rule, 300, cost_key)
+    return sum(costly), interventions
 
 
 def toward_a_wrong_button(env: SafetyNavigationEnv) -> np.ndarray:
@@ -135,22 +150,6 @@ def test_adversarial_proposals_never_press_a_wrong_button(shielded: bool) -> Non
         assert presses > 0  # so the shielded case can fail
 
 
-def creep_at(env: SafetyNavigationEnv, button: str, rule: NavigationShieldingRule | None, steps: int = 40) -> tuple[int, int]:
-    """Creep at ``button`` for ``steps`` steps, behind ``rule`` if given: the button presses that cost, and the
-    interventions."""
-    obs = env.last_obs
-    assert obs is not None
-    costly = interventions = 0
-    for _ in range(steps):
-        proposal = 0.3 * toward_nearest_body(env, [button])
-        if rule is not None:
-            decision = rule.shield(obs[None], proposal[None])
-            proposal, interventions = decision.actions[0], interventions + int(decision.intervened[0])
-        obs, _, _, _, info = env.step(proposal)
-        costly += info.get("cost_buttons", 0.0) > 0
-    return costly, interventions
-
-
 def test_the_robot_leaves_the_button_it_pressed() -> None:
     """PointButton1, seed 2: the robot drives at the goal button and presses it, and the goal moves to another button;
     the pressed one becomes a wrong one once the env's 10-step delay is over, with the robot on it, inside the unsafe
@@ -165,11 +164,15 @@ def test_the_robot_leaves_the_button_it_pressed() -> None:
     while task.goal_button == goal:
         env.step(toward_nearest_body(env, [f"button{goal}"]))
     pressed = env.get_state()
-    alone, _ = creep_at(env, f"button{goal}", None)
+
+    def creep(env: SafetyNavigationEnv) -> np.ndarray:
+        return 0.3 * toward_nearest_body(env, [f"button{goal}"])
+
+    alone, _ = run_proposals(env, creep, None, 40, "cost_buttons")
     env.set_state(pressed)
-    shielded, interventions = creep_at(env, f"button{goal}", rule)
-    assert alone > 0  # so the shielded case can fail
-    assert shielded == 0 and interventions > 0
+    shielded, interventions = run_proposals(env, creep, rule, 40, "cost_buttons")
+    assert any(alone)  # so the shielded case can fail
+    assert not any(shielded) and interventions > 0
 
 
 def test_the_rule_predicts_where_the_gremlins_go() -> None:
@@ -253,21 +256,15 @@ def steps_beyond_the_wall(shielded: bool, steps: int = 60) -> tuple[list[bool], 
     """PointCircle1, seed 0: drive out through the wall at ``x = 1.125`` unshielded, then keep driving outwards for
     ``steps`` steps; whether each of those cost, and the interventions."""
     env = SafetyNavigationEnv("Point", "Circle", 1)
-    rule = NavigationShieldingRule("Point", "Circle", 1)
-    obs, _ = env.reset(seed=0)
-    outside, cost = np.array([3.0, 0.0]), 0.0
-    while cost == 0:
-        obs, _, _, _, info = env.step(toward_point(env, outside))
-        cost = info["cost"]
-    costly, interventions = [], 0
-    for _ in range(steps):
-        proposal = toward_point(env, outside)
-        if shielded:
-            decision = rule.shield(obs[None], proposal[None])
-            proposal, interventions = decision.actions[0], interventions + int(decision.intervened[0])
-        obs, _, _, _, info = env.step(proposal)
-        costly.append(info["cost"] > 0)
-    return costly, interventions
+    env.reset(seed=0)
+
+    def outwards(env: SafetyNavigationEnv) -> np.ndarray:
+        return toward_point(env, np.array([3.0, 0.0]))
+
+    while not any(run_proposals(env, outwards, None, 1)[0]):
+        pass
+    rule = NavigationShieldingRule("Point", "Circle", 1) if shielded else None
+    return run_proposals(env, outwards, rule, steps)
 
 
 def test_beyond_a_wall_the_shield_leads_the_robot_back() -> None:
