@@ -13,8 +13,9 @@ from tiny_hyperparams import TINY_SAILR, TINY_SPPO
 
 import sppo_sb3
 from sppo_sb3.envs.navigation import SafetyNavigationEnv
+from sppo_sb3.envs.navigation.objects import Gremlins
 from sppo_sb3.envs.navigation.tasks.button import ButtonTask
-from sppo_sb3.shield import ShieldFailure, ShieldWrapper
+from sppo_sb3.shield import ConstraintSteps, ShieldFailure, ShieldWrapper
 from sppo_sb3.shield.registry import default_shielding_rule
 from sppo_sb3.shield.tasks.navigation import (
     GREMLIN_MARGIN,
@@ -196,26 +197,113 @@ def test_the_rule_predicts_where_the_gremlins_go() -> None:
     assert worst < GREMLIN_MARGIN < held_still
 
 
-def test_the_robot_keeps_off_the_path_ahead_of_a_gremlin_not_the_one_behind_it() -> None:
-    """A plan that ends where a gremlin will be within the sweep is unsafe, though the gremlin is as far as behind."""
+def gremlin_on_its_circle(time: float = 2.0) -> tuple[NavigationConstraint, np.ndarray, Callable[..., np.ndarray]]:
+    """PointButton1's constraint, a shield state at ``time`` with every gremlin box on one circle, and where the robot
+    is at ``angle`` radians ahead of the box along it, ``out`` metres out of it."""
     definition = navigation_task("Point", "Button", 1)
     model = shield_model(definition)
     constraint = NavigationConstraint.of(definition, model)
-    time, centre, travel = 2.0, np.array([0.5, -0.3]), constraint.gremlin_travel
+    centre, travel = np.array([0.5, -0.3]), constraint.gremlin_travel
     state = np.zeros(physics_size(model) + 3 * model.nmocap)
     state[0] = time
+
+    def on_circle(angle: float, out: float = 0.0) -> np.ndarray:
+        return centre + (travel + out) * np.array([np.sin(time + angle), np.cos(time + angle)])
+
     for x, y in constraint.gremlin_columns:
-        state[[x, y]] = centre + travel * np.array([np.sin(time), np.cos(time)])
+        state[[x, y]] = on_circle(0.0)
+    return constraint, state, on_circle
+
+
+def test_the_robot_keeps_off_the_path_ahead_of_a_gremlin_not_the_one_behind_it() -> None:
+    """A plan that ends where a gremlin will be within the sweep is unsafe, though the gremlin is as far as behind."""
+    constraint, state, on_circle = gremlin_on_its_circle()
 
     def margin(angle: float, sweep: float = constraint.gremlin_sweep) -> float:
         """The first gremlin's margin with the robot on its circle ``angle`` radians ahead of it."""
-        agent = centre + travel * np.array([np.sin(time + angle), np.cos(time + angle)])
-        return float(replace(constraint, gremlin_sweep=sweep).gremlin_margins(state, agent)[0])
+        return float(replace(constraint, gremlin_sweep=sweep).gremlin_margins(state, on_circle(angle))[0])
 
     assert margin(1.8) < 0 < margin(-1.8)  # the same distance from the box, ahead of it and behind it
     assert margin(4.0) > 0  # beyond the sweep's end
     assert margin(1.8, sweep=0.0) > 0 and margin(1.8, sweep=0.0) == pytest.approx(margin(-1.8, sweep=0.0))  # the box alone
     assert margin(0.0) == pytest.approx(-constraint.gremlin_reach)  # on the box
+
+
+def test_inside_a_gremlins_path_the_way_out_is_ahead_of_it_or_outwards() -> None:
+    """The gremlin arrives where the robot is after the arc to the edge of its reach; the depth the rule leads out of
+    shrinks ahead along the path and outwards from it, so a robot inside leaves before the gremlin comes."""
+    constraint, state, on_circle = gremlin_on_its_circle()
+    reach, travel = constraint.gremlin_reach, constraint.gremlin_travel
+    robot = np.zeros_like(state)
+
+    def arrival(angle: float, out: float = 0.0) -> float:
+        return float(constraint.gremlin_arrivals(state, on_circle(angle, out))[0])
+
+    def depth(angle: float, out: float = 0.0) -> float:
+        robot[:] = state
+        robot[1:3] = on_circle(angle, out)  # qpos[0:2]: the robot body's (x, y)
+        return float(constraint.keep_out_depth(robot))
+
+    half_width = 2 * np.arcsin(reach / (2 * travel))  # the box reaches a point of its circle this far either side
+    assert arrival(half_width + 0.4) == pytest.approx(0.4)
+    assert arrival(0.1) == 0.0 and arrival(-0.1) == 0.0  # within reach now, ahead or behind
+    assert arrival(1.0, out=reach + 0.01) == np.inf  # out of reach of the whole circle
+    depths = [depth(angle) for angle in (0.9, 1.2, 1.5)]
+    assert depths[0] > depths[1] > depths[2] > 0
+    assert depth(1.2) > depth(1.2, out=0.5 * reach) > 0 == depth(1.2, out=1.01 * reach)
+
+
+def into_the_gap(env: SafetyNavigationEnv) -> Callable[[SafetyNavigationEnv], np.ndarray]:
+    """Proposals that drive the robot into the gap between the wrong button nearest a gremlin's circle and that circle,
+    then push it at the button: the gremlin, coming round, corners it there."""
+    task = env.task
+    assert isinstance(task, ButtonTask)
+    travel = next(group.travel for group in task.groups if isinstance(group, Gremlins))
+    buttons = [env.layout[f"button{i}"] for i in range(4) if i != task.goal_button]
+    centres = [env.layout[f"gremlin{i}"] for i in range(4)]
+    button, centre = min(((b, c) for b in buttons for c in centres), key=lambda pair: np.linalg.norm(pair[0] - pair[1]))
+    outward = (button - centre) / np.linalg.norm(button - centre)
+    gap = centre + outward * (travel + (np.linalg.norm(button - centre) - travel) / 2)
+
+    def propose(env: SafetyNavigationEnv) -> np.ndarray:
+        in_gap = np.linalg.norm(env.world.agent_xpos()[:2] - gap) < 0.15
+        return toward_point(env, button if in_gap else gap)
+
+    return propose
+
+
+def test_touching_a_gremlin_is_priced_above_standing_in_its_path() -> None:
+    """Both are unsafe; the touch also costs in the env, so it pays a second absorbing tail from its first step."""
+    rule = NavigationShieldingRule("Point", "Button", 1)
+    _, state, on_circle = gremlin_on_its_circle()
+
+    def cost_standing(angle: float) -> float:
+        after = np.repeat(state[None, None], rule.horizon, axis=1)
+        after[..., 1:3] = on_circle(angle)  # the robot body's (x, y)
+        empty = np.zeros((1, rule.horizon, 0))
+        return float(rule.discounted_cost(ConstraintSteps(rule.model, after, after, empty, empty, 0.02))[0])
+
+    in_path, touching = cost_standing(1.5), cost_standing(0.0)  # 1.5 rad ahead of the box: in its path, out of its reach
+    assert in_path > rule.gamma / (1 - rule.gamma)  # unsafe from the first step
+    assert touching - in_path > rule.gamma / (1 - rule.gamma)
+
+
+@pytest.mark.parametrize(("seed", "before"), [(1, "40 steps in a hazard"), (10, "4 presses")])
+def test_a_robot_pushed_between_a_gremlins_circle_and_what_costs_gets_out_of_the_way(seed: int, before: str) -> None:
+    """PointButton1: proposals hold the robot between a wrong button and a gremlin's circle and push it at the button
+    (seed 1: past a hazard); the gremlin comes round. Touching the gremlin, the button or the hazard costs, standing in
+    the gremlin's path ahead does not yet, and the rule prices them so; inside the path it leads ahead of the gremlin
+    or outwards (:meth:`~sppo_sb3.shield.tasks.navigation.NavigationConstraint.keep_out_depth`), looking far enough
+    ahead to find the way round what blocks the shortest way out. It pays nothing; the rule before these paid
+    ``before`` (checked on 668f07f)."""
+    env = SafetyNavigationEnv("Point", "Button", 1)
+    env.reset(seed=seed)
+    propose, start = into_the_gap(env), env.get_state()
+    alone, _ = run_proposals(env, propose, None, 300, "cost_buttons")
+    env.set_state(start)
+    costly, interventions = run_proposals(env, propose, NavigationShieldingRule("Point", "Button", 1), 300, "cost")
+    assert any(alone)  # so the shielded case can fail
+    assert not any(costly) and interventions > 0
 
 
 @pytest.mark.parametrize("shielded", [True, False])

@@ -77,6 +77,13 @@ class StateConstraint(ABC):
     def distance(self, steps: ConstraintSteps) -> np.ndarray:
         """``(..., T)`` distances ``>= 0`` from each step's outcome to the unsafe set (0 at or inside it)."""
 
+    def costly(self, steps: ConstraintSteps) -> tuple[np.ndarray, np.ndarray | float] | None:
+        """Where :meth:`is_unsafe` keeps out of more than what costs in the env (a path that a moving object will take):
+        ``(..., T)`` whether each step costs, and how deep inside what costs it is (as :meth:`depth`). ``None`` (the
+        default): every unsafe step costs. The rule prices a costly step above one that is only kept out of, so that a
+        robot cornered between the two takes the latter."""
+        return None
+
     def depth(self, steps: ConstraintSteps) -> np.ndarray | float:
         """``(..., T)`` how far inside the unsafe set each step's outcome is (``>= 0``; 0 outside), in the units of
         :meth:`distance`: the rule leads a robot that is inside out the shortest way. Default: 0 (then only the steps

@@ -36,6 +36,11 @@ def lookahead_horizon(dt: float, seconds: float, least: int = 2) -> int:
     return max(least, math.ceil(seconds / dt - 1e-9))
 
 
+def none_before(flags: np.ndarray) -> np.ndarray:
+    """``(..., T)``: no flag is set strictly before each step of the last axis."""
+    return (np.cumsum(flags, axis=-1) - flags) == 0
+
+
 class MujocoShieldingRule(ShieldingRule):
     """MPPI backup ``ζ`` and ``Q̄`` rolled on a gymnasium MuJoCo task's own model, for any constraint on its state.
 
@@ -51,7 +56,11 @@ class MujocoShieldingRule(ShieldingRule):
     <sppo_sb3.shield.mujoco.model.StateConstraint.depth>`) in units of the band. The tail alone prices every plan from
     inside the unsafe set alike, so that ``Ā = 0`` there and eq. 12 would pass any proposal, also one that goes
     deeper; where a violation does not end the episode (the velocity and navigation tasks), the steps spent inside and
-    their depth rank the plans, and the backup leads out. Where the task ends its episodes on its own
+    their depth rank the plans, and the backup leads out. Second deviation, where the unsafe set keeps out of more than
+    what costs (:meth:`StateConstraint.costly <sppo_sb3.shield.mujoco.model.StateConstraint.costly>`: the path a
+    gremlin will sweep): the steps that cost are priced so again, as a second unsafe set inside the first, so that a
+    robot cornered between a kept-out path and a wrong button enters the path, where nothing costs yet. Where the
+    task ends its episodes on its own
     (:class:`~sppo_sb3.shield.mujoco.model.EpisodeEnd`: a fall), the sum stops after the step that ends the episode: a
     fallen robot's sliding costs nothing in the env, and counting it would make every plan look as bad as a violation,
     so that ``Ā ≈ 0`` and the shield let proposals through. Every ``J`` is ``>= 0``.
@@ -231,25 +240,35 @@ class MujocoShieldingRule(ShieldingRule):
 
     def discounted_cost(self, steps: ConstraintSteps) -> np.ndarray:
         """``J = Σ_t γ^(t+1) ĉ_(t+1)`` (eq. 18) with the absorbing tail ``γ^(t+1)/(1-γ)`` at the first violation, and
-        ``γ^(t+1) (1 + depth / α)`` for each later step still in the unsafe set (see the class).
+        ``γ^(t+1) (1 + depth / α)`` for each later step still in the unsafe set; the same again for the set of steps
+        that cost, where the constraint keeps out of more (see the class).
 
         :param steps: ``(..., T)`` rolled env steps.
         :return: ``(...)`` discounted costs, ``>= 0``.
         """
         unsafe = np.asarray(self.constraint.is_unsafe(steps), dtype=bool)
-        before_violation = (np.cumsum(unsafe, axis=-1) - unsafe) == 0  # no violation strictly before t
         live = np.ones_like(unsafe)
         end = self.layout.episode_end
         if end is not None:  # nothing costs after the step that ends the episode (a fall)
-            ended = end.ended(steps.qpos(steps.after), steps.qvel(steps.after))
-            live = (np.cumsum(ended, axis=-1) - ended) == 0
+            live = none_before(end.ended(steps.qpos(steps.after), steps.qvel(steps.after)))
         discount = self.gamma ** np.arange(1, unsafe.shape[-1] + 1)
-        cost = shaped_cost(self.constraint.distance(steps), self.alpha)
-        step = np.where(unsafe, discount / (1.0 - self.gamma), cost * discount)
-        absorbed = np.sum(np.where(before_violation & live, step, 0.0), axis=-1)
-        depth = np.asarray(self.constraint.depth(steps)) / (self.alpha if self.alpha > 0 else 1.0)
-        lingering = np.sum(np.where(unsafe & ~before_violation & live, discount * (1.0 + depth), 0.0), axis=-1)
-        return absorbed + lingering
+        shaped = shaped_cost(self.constraint.distance(steps), self.alpha) * discount
+        cost = np.sum(np.where(none_before(unsafe) & ~unsafe & live, shaped, 0.0), axis=-1)
+        cost += self.violation_cost(unsafe, self.constraint.depth(steps), live, discount)
+        costly = self.constraint.costly(steps)
+        if costly is not None:
+            cost += self.violation_cost(np.asarray(costly[0], dtype=bool), costly[1], live, discount)
+        return cost
+
+    def violation_cost(
+        self, unsafe: np.ndarray, depth: np.ndarray | float, live: np.ndarray, discount: np.ndarray
+    ) -> np.ndarray:
+        """``(...)`` the absorbing tail at the first of the ``(..., T)`` ``unsafe`` steps, and ``1 + depth / α`` for
+        each later one, discounted by ``discount`` ``(T,)``, over the ``live`` steps."""
+        first = none_before(unsafe)
+        depth = np.asarray(depth) / (self.alpha if self.alpha > 0 else 1.0)
+        step = np.where(first, discount / (1.0 - self.gamma), discount * (1.0 + depth))
+        return np.sum(np.where(unsafe & live, step, 0.0), axis=-1)
 
     def plan_costs(self, states: np.ndarray, plans: np.ndarray, first_action: np.ndarray | None = None) -> np.ndarray:
         """``J`` of each rollout "``first_action`` (if given), then ``plans``" from ``states``.

@@ -49,6 +49,9 @@ from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule, lookahead_horizon
 #: rule was first validated with), 8 of the Car's 40 ms steps, over the Car's braking from top speed (0.77 m/s, 0.2 s)
 #: with margin, and at half the cost of 15 (docs/guide/tasks.md: "The navigation shield").
 LOOKAHEAD_SECONDS = 0.3
+#: how far ahead they look where gremlins move (Button 1 and 2): far enough for the backup to find the way out of a
+#: gremlin's path before it comes, round what blocks the shortest (a hazard, a wrong button)
+GREMLIN_LOOKAHEAD_SECONDS = 0.4
 #: a button this close to the goal is the goal button (the env puts the goal on it; buttons keep 0.4 m apart)
 GOAL_ON_BUTTON = 1e-3
 #: metres added to a gremlin's reach for the lag of its box behind the circling mocap body it is welded to
@@ -150,15 +153,19 @@ class NavigationConstraint(StateConstraint):
         return not objects and self.wall is None
 
     def margins(self, states: np.ndarray) -> np.ndarray:
-        """``(..., k)`` the signed distance of each constraint (``<= 0``: violated) in states ``(..., nstate)``."""
+        """``(..., k)`` the signed distance of each constraint that costs (``<= 0``: violated) in states ``(..., nstate)``:
+        hazards, pillars and vases, gremlins where they are, wrong buttons, walls; the gremlins' paths ahead are
+        :meth:`keep_out_margins`."""
         agent = states[..., 1:3]  # qpos[0:2]: the robot body's (x, y) in the shield model
         parts = []
-        for columns, reach in ((self.hazard_columns, self.hazard_size), (self.contact_columns, np.array(self.contact_reach))):
+        for columns, reach in (
+            (self.hazard_columns, self.hazard_size),
+            (self.contact_columns, np.array(self.contact_reach)),
+            (self.gremlin_columns, self.gremlin_reach),
+        ):
             if columns:
                 centres = states[..., np.array(columns)]  # (..., n, 2)
                 parts.append(np.linalg.norm(centres - agent[..., None, :], axis=-1) - reach)
-        if self.gremlin_columns:
-            parts.append(self.gremlin_margins(states, agent))
         if self.button_columns:
             parts.append(self.wrong_button_margins(states, agent))
         if self.wall is not None:
@@ -166,19 +173,42 @@ class NavigationConstraint(StateConstraint):
             parts.append(self.wall - extent)
         return np.concatenate(parts, axis=-1) if parts else np.full((*states.shape[:-1], 1), np.inf)
 
-    def gremlin_margins(self, states: np.ndarray, agent: np.ndarray) -> np.ndarray:
-        """``(..., n)`` the robot's distance to the reach of each gremlin's path over the next ``gremlin_sweep`` seconds.
+    def keep_out_margins(self, states: np.ndarray) -> np.ndarray:
+        """``(..., n)`` the signed distance of each gremlin's path ahead (:meth:`gremlin_margins`), ``(..., 0)`` without
+        gremlins: kept out of as unsafe, though the env charges nothing there yet."""
+        if not self.gremlin_columns:
+            return np.zeros((*states.shape[:-1], 0))
+        return self.gremlin_margins(states, states[..., 1:3])
+
+    def keep_out_depth(self, states: np.ndarray) -> np.ndarray:
+        """``(...)`` how deep the robot is in the gremlins' paths ahead: the depth of the deepest, plus the arc the
+        gremlin has left to travel before it can touch the robot short of the sweep (:meth:`gremlin_arrivals`), so that
+        a robot inside leaves ahead of the gremlin or outwards, not only the shortest way (into a wrong button)."""
+        margins = self.keep_out_margins(states)
+        if margins.shape[-1] == 0:
+            return np.zeros(states.shape[:-1])
+        early = self.gremlin_travel * np.maximum(self.gremlin_sweep - self.gremlin_arrivals(states, states[..., 1:3]), 0.0)
+        return np.max(np.where(margins <= 0, early - margins, 0.0), axis=-1)
+
+    def gremlin_frame(self, states: np.ndarray, agent: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The state's time ``(..., 1)``, and per gremlin ``(..., n, ·)``: its box, its circle's centre, the robot's
+        offset from the centre and its angle ahead of the box along the circle.
 
         A gremlin at time ``t`` is at ``c + travel · (sin t, cos t)`` (``Gremlins.mocap_target``, one radian per
-        second), so its centre ``c`` follows from where it is; the robot's distance to the arc from ``t`` to
-        ``t + sweep`` is its distance to the circle where the robot's direction from ``c`` lies on the arc, else to
-        the nearer end.
+        second), so its centre ``c`` follows from where it is.
         """
         time = states[..., :1]  # (..., 1): column 0, the state's time
         boxes = states[..., np.array(self.gremlin_columns)]  # (..., n, 2)
         centres = boxes - self.gremlin_travel * np.stack([np.sin(time), np.cos(time)], axis=-1)
         offsets = agent[..., None, :] - centres
-        ahead = np.mod(np.arctan2(offsets[..., 0], offsets[..., 1]) - time, 2 * np.pi)  # the robot's angle past the box
+        ahead = np.mod(np.arctan2(offsets[..., 0], offsets[..., 1]) - time, 2 * np.pi)
+        return time, boxes, centres, offsets, ahead
+
+    def gremlin_margins(self, states: np.ndarray, agent: np.ndarray) -> np.ndarray:
+        """``(..., n)`` the robot's distance to the reach of each gremlin's path over the next ``gremlin_sweep`` seconds:
+        its distance to the circle where the robot's direction from the centre lies on the arc, else to the nearer
+        end (:meth:`gremlin_frame`)."""
+        time, boxes, centres, offsets, ahead = self.gremlin_frame(states, agent)
         end = time + self.gremlin_sweep
         ends = centres + self.gremlin_travel * np.stack([np.sin(end), np.cos(end)], axis=-1)
         to_ends = np.minimum(
@@ -186,6 +216,16 @@ class NavigationConstraint(StateConstraint):
         )
         to_circle = np.abs(np.linalg.norm(offsets, axis=-1) - self.gremlin_travel)
         return np.where(ahead <= self.gremlin_sweep, to_circle, to_ends) - self.gremlin_reach
+
+    def gremlin_arrivals(self, states: np.ndarray, agent: np.ndarray) -> np.ndarray:
+        """``(..., n)`` seconds until each gremlin's box comes within reach of the robot where it is (0: it is;
+        ``2π`` or more: never, the robot being out of reach of the circle)."""
+        _, _, _, offsets, ahead = self.gremlin_frame(states, agent)
+        radius, travel = np.linalg.norm(offsets, axis=-1), self.gremlin_travel
+        cosine = (radius**2 + travel**2 - self.gremlin_reach**2) / np.maximum(2 * radius * travel, 1e-12)
+        half_width = np.arccos(np.clip(cosine, -1.0, 1.0))  # the box is within reach this far either side of the robot
+        within = (ahead <= half_width) | (ahead >= 2 * np.pi - half_width)
+        return np.where(within, 0.0, np.where(cosine > 1.0, np.inf, ahead - half_width))
 
     def wrong_button_margins(self, states: np.ndarray, agent: np.ndarray) -> np.ndarray:
         """``(..., n)`` the robot's distance to touching each button, ``inf`` for the goal button (the goal sits on it)."""
@@ -195,17 +235,30 @@ class NavigationConstraint(StateConstraint):
         is_goal = np.linalg.norm(centres - goal[..., None, :], axis=-1) < GOAL_ON_BUTTON
         return np.where(is_goal, np.inf, margins)
 
-    def is_unsafe(self, steps: ConstraintSteps) -> np.ndarray:
-        margins = self.margins(steps.after)
+    def violated(self, margins: np.ndarray) -> np.ndarray:
+        """``(...)`` whether any of :meth:`margins`' constraints is violated."""
         hazards = len(self.hazard_columns)  # Safety-Gymnasium: a hazard costs strictly inside its radius
         inside = np.any(margins[..., :hazards] < 0, axis=-1) if hazards else np.zeros(margins.shape[:-1], dtype=bool)
         return inside | np.any(margins[..., hazards:] <= 0, axis=-1)
 
+    def is_unsafe(self, steps: ConstraintSteps) -> np.ndarray:
+        return self.violated(self.margins(steps.after)) | np.any(self.keep_out_margins(steps.after) <= 0, axis=-1)
+
+    def costly(self, steps: ConstraintSteps) -> tuple[np.ndarray, np.ndarray] | None:
+        if not self.gremlin_columns:
+            return None
+        margins = self.margins(steps.after)
+        return self.violated(margins), np.maximum(-np.min(margins, axis=-1), 0.0)
+
+    def all_margins(self, states: np.ndarray) -> np.ndarray:
+        """``(..., k + n)`` :meth:`margins` and :meth:`keep_out_margins`."""
+        return np.concatenate([self.margins(states), self.keep_out_margins(states)], axis=-1)
+
     def distance(self, steps: ConstraintSteps) -> np.ndarray:
-        return np.maximum(np.min(self.margins(steps.after), axis=-1), 0.0)
+        return np.maximum(np.min(self.all_margins(steps.after), axis=-1), 0.0)
 
     def depth(self, steps: ConstraintSteps) -> np.ndarray:
-        return np.maximum(-np.min(self.margins(steps.after), axis=-1), 0.0)
+        return np.maximum(np.maximum(-np.min(self.margins(steps.after), axis=-1), 0.0), self.keep_out_depth(steps.after))
 
 
 def shield_model(task: NavigationTask) -> mujoco.MjModel:
@@ -309,7 +362,8 @@ class NavigationShieldingRule(MujocoShieldingRule):
     :param level: 0, 1 or 2.
     :param alpha: the shaped cost's band of eq. 18, in metres (the env's ``alpha``).
     :param n_particles: MPPI particles per solve (half :class:`MujocoShieldingRule`'s: the robots have two controls).
-    :param horizon: ``H_m`` in env steps (``None``: :data:`LOOKAHEAD_SECONDS` of the robot's steps).
+    :param horizon: ``H_m`` in env steps (``None``: :data:`LOOKAHEAD_SECONDS` of the robot's steps,
+        :data:`GREMLIN_LOOKAHEAD_SECONDS` where gremlins move).
     :param kwargs: further settings of :class:`MujocoShieldingRule` (``eta``, ``noise_std``, ...).
     """
 
@@ -325,11 +379,12 @@ class NavigationShieldingRule(MujocoShieldingRule):
     ) -> None:
         layout = NavigationLayout.of_task(robot, task, level)
         definition = navigation_task(robot, task, level)
-        if horizon is None:
-            horizon = lookahead_horizon(definition.robot.timestep * FRAME_SKIP, LOOKAHEAD_SECONDS)
         constraint = NavigationConstraint.of(definition, shield_model(definition))
         if constraint.empty:
             raise ValueError(f"{layout.env_id} constrains nothing the shield covers: it needs no shield (use shield=None).")
+        if horizon is None:
+            seconds = GREMLIN_LOOKAHEAD_SECONDS if constraint.gremlin_columns else LOOKAHEAD_SECONDS
+            horizon = lookahead_horizon(definition.robot.timestep * FRAME_SKIP, seconds)
         super().__init__(layout, constraint, horizon=horizon, alpha=alpha, n_particles=n_particles, **kwargs)
         self._physics = physics_size(self.model)
         self._gremlins = next((g for g in definition.groups if isinstance(g, Gremlins) and g.constrained), None)
