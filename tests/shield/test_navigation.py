@@ -288,7 +288,9 @@ def test_touching_a_gremlin_is_priced_above_standing_in_its_path() -> None:
     assert touching - in_path > rule.gamma / (1 - rule.gamma)
 
 
-@pytest.mark.parametrize(("seed", "before"), [(1, "40 steps in a hazard"), (10, "4 presses")])
+@pytest.mark.parametrize(
+    ("seed", "before"), [(1, "40 steps in a hazard"), (10, "4 presses"), (26, "31 steps touching a gremlin")]
+)
 def test_a_robot_pushed_between_a_gremlins_circle_and_what_costs_gets_out_of_the_way(seed: int, before: str) -> None:
     """PointButton1: proposals hold the robot between a wrong button and a gremlin's circle and push it at the button
     (seed 1: past a hazard); the gremlin comes round. Touching the gremlin, the button or the hazard costs, standing in

@@ -23,8 +23,11 @@ the robot's motion changes by about that much when it pushes one. The constraint
   welded to a mocap body that circles on a clock (``Gremlins.mocap_target``), so each rolled step moves its marker by
   the circle's motion since the state's time, and the constraint keeps the robot off the arc the box sweeps from
   there: a plan that ends standing in a gremlin's path is unsafe, though the contact would come after the lookahead.
-  The margin covers the weld's lag. What is covered is the lookahead plus the sweep, not a gremlin that corners the
-  robot later;
+  The margin covers the weld's lag. The path ahead costs nothing yet: the constraint says which steps cost
+  (:meth:`NavigationConstraint.costly`), so that the rule enters a path before it touches anything, and inside one
+  leads the robot out ahead of the gremlin or outwards (:meth:`NavigationConstraint.keep_out_depth`), looking
+  :data:`GREMLIN_LOOKAHEAD_SECONDS` ahead. Still a prediction: a robot held where the gremlin will come, with no way
+  out within the lookahead, can be reached;
 - **walls** (Circle 1 and 2, exact): ``|x|`` (and ``|y|``) beyond 1.125.
 """
 
