@@ -14,7 +14,7 @@ from sppo_sb3.shield.learned.base import RefinableRule
 from sppo_sb3.shield.learned.critic import LearnedCostCriticRule
 from sppo_sb3.shield.learned.dynamics import LearnedDynamicsRule
 from sppo_sb3.shield.learned.latent import LatentModelRule
-from sppo_sb3.shield.mujoco.model import ConstraintSteps, MujocoLayout, StateConstraint
+from sppo_sb3.shield.mujoco.model import ConstraintCosts, ConstraintSteps, MujocoLayout, StateConstraint
 from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule
 from sppo_sb3.shield.registry import (
     RULE_ENV_PARAMETERS,
@@ -32,6 +32,7 @@ from sppo_sb3.shield.wrapper import ShieldWrapper
 __all__ = [
     "RULE_ENV_PARAMETERS",
     "SHIELDING_RULES",
+    "ConstraintCosts",
     "ConstraintSteps",
     "HalfCheetahHeightShieldingRule",
     "LatentModelRule",

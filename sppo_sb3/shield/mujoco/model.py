@@ -53,6 +53,15 @@ class ConstraintSteps(NamedTuple):
         return states[..., 1 + self.model.nq : 1 + self.model.nq + self.model.nv]
 
 
+class ConstraintCosts(NamedTuple):
+    """What the rule prices of rolled env steps, ``(..., T)`` each (see :class:`StateConstraint`)."""
+
+    unsafe: np.ndarray
+    distance: np.ndarray
+    depth: np.ndarray | float
+    costly: tuple[np.ndarray, np.ndarray | float] | None
+
+
 class StateConstraint(ABC):
     """An unsafe set on the simulator state: which env steps violate it, and how far each step ends from it.
 
@@ -61,6 +70,7 @@ class StateConstraint(ABC):
     :class:`ConstraintSteps`. A constraint that reads a quantity MuJoCo computes (a body's position, a contact) adds a
     sensor in :meth:`add_sensors` and reads it from ``sensors_after``: sensors are evaluated natively in the rollouts.
     Set :attr:`uses_states` to ``False`` when only sensors are read (the rollouts then skip recording states).
+    The rule reads all of them at once through :meth:`assess`; a constraint whose methods share work overrides it.
     Constraints are pickled with the rule: keep them plain data.
     """
 
@@ -83,6 +93,10 @@ class StateConstraint(ABC):
         default): every unsafe step costs. The rule prices a costly step above one that is only kept out of, so that a
         robot cornered between the two takes the latter."""
         return None
+
+    def assess(self, steps: ConstraintSteps) -> ConstraintCosts:
+        """:meth:`is_unsafe`, :meth:`distance`, :meth:`depth` and :meth:`costly` of the same steps."""
+        return ConstraintCosts(self.is_unsafe(steps), self.distance(steps), self.depth(steps), self.costly(steps))
 
     def depth(self, steps: ConstraintSteps) -> np.ndarray | float:
         """``(..., T)`` how far inside the unsafe set each step's outcome is (``>= 0``; 0 outside), in the units of

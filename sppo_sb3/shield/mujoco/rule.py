@@ -246,18 +246,18 @@ class MujocoShieldingRule(ShieldingRule):
         :param steps: ``(..., T)`` rolled env steps.
         :return: ``(...)`` discounted costs, ``>= 0``.
         """
-        unsafe = np.asarray(self.constraint.is_unsafe(steps), dtype=bool)
+        costs = self.constraint.assess(steps)
+        unsafe = np.asarray(costs.unsafe, dtype=bool)
         live = np.ones_like(unsafe)
         end = self.layout.episode_end
         if end is not None:  # nothing costs after the step that ends the episode (a fall)
             live = none_before(end.ended(steps.qpos(steps.after), steps.qvel(steps.after)))
         discount = self.gamma ** np.arange(1, unsafe.shape[-1] + 1)
-        shaped = shaped_cost(self.constraint.distance(steps), self.alpha) * discount
+        shaped = shaped_cost(costs.distance, self.alpha) * discount
         cost = np.sum(np.where(none_before(unsafe) & ~unsafe & live, shaped, 0.0), axis=-1)
-        cost += self.violation_cost(unsafe, self.constraint.depth(steps), live, discount)
-        costly = self.constraint.costly(steps)
-        if costly is not None:
-            cost += self.violation_cost(np.asarray(costly[0], dtype=bool), costly[1], live, discount)
+        cost += self.violation_cost(unsafe, costs.depth, live, discount)
+        if costs.costly is not None:
+            cost += self.violation_cost(np.asarray(costs.costly[0], dtype=bool), costs.costly[1], live, discount)
         return cost
 
     def violation_cost(

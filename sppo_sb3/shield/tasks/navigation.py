@@ -45,7 +45,7 @@ from sppo_sb3.envs.navigation.robots import ROBOTS
 from sppo_sb3.envs.navigation.tasks import TASKS, NavigationTask
 from sppo_sb3.envs.navigation.world import FRAME_SKIP, moved, world_xml
 from sppo_sb3.shield.base import ShieldFailure
-from sppo_sb3.shield.mujoco.model import FULL_STATE, ConstraintSteps, MujocoLayout, StateConstraint
+from sppo_sb3.shield.mujoco.model import FULL_STATE, ConstraintCosts, ConstraintSteps, MujocoLayout, StateConstraint
 from sppo_sb3.shield.mujoco.rule import MujocoShieldingRule, lookahead_horizon
 
 #: how far ahead the navigation rules look, one time for both robots: 15 of the Point's 20 ms steps (the horizon its
@@ -183,11 +183,14 @@ class NavigationConstraint(StateConstraint):
             return np.zeros((*states.shape[:-1], 0))
         return self.gremlin_margins(states, states[..., 1:3])
 
-    def keep_out_depth(self, states: np.ndarray) -> np.ndarray:
+    def keep_out_depth(self, states: np.ndarray, margins: np.ndarray | None = None) -> np.ndarray:
         """``(...)`` how deep the robot is in the gremlins' paths ahead: the depth of the deepest, plus the arc the
         gremlin has left to travel before it can touch the robot short of the sweep (:meth:`gremlin_arrivals`), so that
-        a robot inside leaves ahead of the gremlin or outwards, not only the shortest way (into a wrong button)."""
-        margins = self.keep_out_margins(states)
+        a robot inside leaves ahead of the gremlin or outwards, not only the shortest way (into a wrong button).
+
+        :param margins: the states' :meth:`keep_out_margins`, if computed already.
+        """
+        margins = self.keep_out_margins(states) if margins is None else margins
         if margins.shape[-1] == 0:
             return np.zeros(states.shape[:-1])
         early = self.gremlin_travel * np.maximum(self.gremlin_sweep - self.gremlin_arrivals(states, states[..., 1:3]), 0.0)
@@ -244,24 +247,34 @@ class NavigationConstraint(StateConstraint):
         inside = np.any(margins[..., :hazards] < 0, axis=-1) if hazards else np.zeros(margins.shape[:-1], dtype=bool)
         return inside | np.any(margins[..., hazards:] <= 0, axis=-1)
 
-    def is_unsafe(self, steps: ConstraintSteps) -> np.ndarray:
-        return self.violated(self.margins(steps.after)) | np.any(self.keep_out_margins(steps.after) <= 0, axis=-1)
-
-    def costly(self, steps: ConstraintSteps) -> tuple[np.ndarray, np.ndarray] | None:
+    def assess(self, steps: ConstraintSteps) -> ConstraintCosts:
+        """Each margin once: hazards and the other objects that cost, then the gremlins' paths ahead, which do not yet
+        (:meth:`costly`)."""
+        states = steps.after
+        margins = self.margins(states)
+        nearest = np.min(margins, axis=-1)
+        violated, depth = self.violated(margins), np.maximum(-nearest, 0.0)
         if not self.gremlin_columns:
-            return None
-        margins = self.margins(steps.after)
-        return self.violated(margins), np.maximum(-np.min(margins, axis=-1), 0.0)
+            return ConstraintCosts(violated, np.maximum(nearest, 0.0), depth, None)
+        keep_out = self.keep_out_margins(states)
+        return ConstraintCosts(
+            unsafe=violated | np.any(keep_out <= 0, axis=-1),
+            distance=np.maximum(np.minimum(nearest, np.min(keep_out, axis=-1)), 0.0),
+            depth=np.maximum(depth, self.keep_out_depth(states, keep_out)),
+            costly=(violated, depth),
+        )
 
-    def all_margins(self, states: np.ndarray) -> np.ndarray:
-        """``(..., k + n)`` :meth:`margins` and :meth:`keep_out_margins`."""
-        return np.concatenate([self.margins(states), self.keep_out_margins(states)], axis=-1)
+    def is_unsafe(self, steps: ConstraintSteps) -> np.ndarray:
+        return self.assess(steps).unsafe
 
     def distance(self, steps: ConstraintSteps) -> np.ndarray:
-        return np.maximum(np.min(self.all_margins(steps.after), axis=-1), 0.0)
+        return self.assess(steps).distance
 
-    def depth(self, steps: ConstraintSteps) -> np.ndarray:
-        return np.maximum(np.maximum(-np.min(self.margins(steps.after), axis=-1), 0.0), self.keep_out_depth(steps.after))
+    def depth(self, steps: ConstraintSteps) -> np.ndarray | float:
+        return self.assess(steps).depth
+
+    def costly(self, steps: ConstraintSteps) -> tuple[np.ndarray, np.ndarray | float] | None:
+        return self.assess(steps).costly
 
 
 def shield_model(task: NavigationTask) -> mujoco.MjModel:
