@@ -186,9 +186,9 @@ def test_the_rule_predicts_where_the_gremlins_go() -> None:
     gremlins = [f"gremlin{i}obj" for i in range(4)]
     start = to_shield_state(env, rule.model)
     columns = [mocap_columns(rule.model, body) for body in gremlins]
-    steps = rule.rollout_steps(start[None], np.zeros((1, 15, 2)))  # the rule's lookahead
+    steps = rule.rollout_steps(start[None], np.zeros((1, rule.horizon, 2)))  # the rule's lookahead
     worst, held_still = 0.0, 0.0
-    for k in range(15):
+    for k in range(rule.horizon):
         env.step(np.zeros(2))
         actual = env.world.body_xpos(gremlins)[:, :2]
         predicted = np.array([steps.after[0, k, list(c)] for c in columns])
