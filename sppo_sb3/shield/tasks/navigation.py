@@ -225,7 +225,7 @@ class NavigationConstraint(StateConstraint):
 
     def gremlin_arrivals(self, states: np.ndarray, agent: np.ndarray) -> np.ndarray:
         """``(..., n)`` seconds until each gremlin's box comes within reach of the robot where it is (0: it is;
-        ``2π`` or more: never, the robot being out of reach of the circle)."""
+        ``inf``: never, the robot being out of reach of the circle)."""
         _, _, _, offsets, ahead = self.gremlin_frame(states, agent)
         radius, travel = np.linalg.norm(offsets, axis=-1), self.gremlin_travel
         cosine = (radius**2 + travel**2 - self.gremlin_reach**2) / np.maximum(2 * radius * travel, 1e-12)
