@@ -8,6 +8,7 @@ the rule is the physics; certificates (see the class) spare most solves. The con
 from __future__ import annotations
 
 import copy
+import itertools
 import math
 import os
 from typing import Any
@@ -131,6 +132,7 @@ class MujocoShieldingRule(ShieldingRule):
         seed: int | None = 0,
         certify: bool = True,
         certificate_particles: int = 16,
+        constant_particles: int = 0,
         n_threads: int | None = None,
         warm_starts: int = 256,
         env_kwargs: dict[str, Any] | None = None,
@@ -158,6 +160,10 @@ class MujocoShieldingRule(ShieldingRule):
         self._build()
         self.noise = noise_std * np.random.default_rng(seed).standard_normal((n_particles, horizon, self.model.nu))
         self.noise[0] = 0.0
+        if constant_particles:  # the last particles hold one corner of the action box for the whole plan
+            corners = np.array([d for d in itertools.product((-1.0, 0.0, 1.0), repeat=self.model.nu) if any(d)])
+            corners = corners[:constant_particles] * (self.action_high - self.action_low)
+            self.noise[n_particles - len(corners) :] = corners[:, None, :]
         self.warm_starts = WarmStarts(warm_starts, horizon, self.model.nu)
         self.solve_counts = SolveCounts()
 

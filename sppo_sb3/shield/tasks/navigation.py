@@ -401,6 +401,8 @@ class NavigationShieldingRule(MujocoShieldingRule):
         if horizon is None:
             seconds = GREMLIN_LOOKAHEAD_SECONDS if constraint.gremlin_columns else LOOKAHEAD_SECONDS
             horizon = lookahead_horizon(definition.robot.timestep * FRAME_SKIP, seconds)
+        if constraint.gremlin_columns:
+            kwargs.setdefault("constant_particles", 8)
         super().__init__(layout, constraint, horizon=horizon, alpha=alpha, n_particles=n_particles, **kwargs)
         self._physics = physics_size(self.model)
         self._gremlins = next((g for g in definition.groups if isinstance(g, Gremlins) and g.constrained), None)
