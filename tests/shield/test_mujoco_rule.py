@@ -227,6 +227,31 @@ def test_shielded_random_proposals_never_violate(env_id: str) -> None:
     assert counts[True] == 0
 
 
+def held_pattern(particle: np.ndarray, nominal: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[int, ...]:
+    """Per control, -1 / +1 where the particle holds it at its lower / upper bound for the whole plan, 0 where it
+    follows the nominal plan; fails on any other particle."""
+    pattern = []
+    for j in range(particle.shape[1]):
+        held = [np.all(particle[:, j] == low[j]), np.all(particle[:, j] == high[j]), np.all(particle[:, j] == nominal[:, j])]
+        assert sum(held) == 1, f"control {j} neither held at a bound nor on the plan: {particle[:, j]}"
+        pattern.append((-1, 1, 0)[held.index(True)])
+    return tuple(pattern)
+
+
+def test_held_particles_keep_each_control_at_a_bound_or_on_the_plan() -> None:
+    """The last ``constant_particles`` are the directions of the action box, held over the plan (the ``Q̄`` solves'
+    shorter plans too); the particles before them are those of a rule without."""
+    rule = small_rule("Swimmer-v4", VELOCITY["Swimmer-v4"], constant_particles=8)
+    plain = small_rule("Swimmer-v4", VELOCITY["Swimmer-v4"])
+    low, high = rule.action_low, rule.action_high
+    for length in (rule.horizon, rule.horizon - 1):
+        nominal = np.random.default_rng(length).uniform(0.9 * low, 0.9 * high, (1, length, 2))
+        particles = rule.particles(nominal)[0]
+        patterns = {held_pattern(p, nominal[0], low, high) for p in particles[-8:]}
+        assert patterns == {(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)} - {(0, 0)}
+        np.testing.assert_array_equal(particles[:-8], plain.particles(nominal)[0, :-8])
+
+
 # ---------------------------------------------------------------------------------------------- bad input, persistence
 def test_a_task_the_rule_cannot_model_is_refused_with_a_reason() -> None:
     with pytest.raises(ValueError, match="not a gymnasium MuJoCo env"):
@@ -245,6 +270,13 @@ def test_a_task_the_rule_cannot_model_is_refused_with_a_reason() -> None:
     rule = small_rule("Hopper-v4", VelocityConstraint(1.0))
     with pytest.raises(ValueError, match="Expected observations of size 11"):
         rule.cost_value(np.zeros((1, 5)), np.zeros((1, 3)))
+
+
+def test_held_particles_beyond_the_particles_or_the_directions_are_refused() -> None:
+    with pytest.raises(ValueError, match=r"constant_particles=16 must be in \[0, n_particles=16\)"):
+        small_rule("Swimmer-v4", VELOCITY["Swimmer-v4"], constant_particles=16)
+    with pytest.raises(ValueError, match="a robot with 2 controls has 8 directions"):
+        small_rule("Swimmer-v4", VELOCITY["Swimmer-v4"], constant_particles=9)
 
 
 def test_an_observation_without_a_state_fails_closed() -> None:

@@ -67,7 +67,8 @@ class MujocoShieldingRule(ShieldingRule):
     so that ``Ā ≈ 0`` and the shield let proposals through. Every ``J`` is ``>= 0``.
 
     The MPC from a state ``s`` (optionally after a fixed first action) around a nominal plan ``W``: one MPPI iteration
-    over ``N`` particles ``clip(W + σ·ε_i)`` (``ε_0 = 0``: particle 0 is ``W`` itself), each scored by ``J``;
+    over ``N`` particles ``clip(W + σ·ε_i)`` (``ε_0 = 0``: particle 0 is ``W`` itself; the last
+    ``constant_particles`` hold controls at their bounds), each scored by ``J``;
     weights ``softmax(-J / λ)``; the MPPI plan is the weighted mean of the particles. Of the MPPI plan and the best
     particle, the MPC returns the one with the lower ``J``; so its ``J`` is never above ``W``'s.
 
@@ -112,6 +113,10 @@ class MujocoShieldingRule(ShieldingRule):
         ``ζ(s)``, ``Q̄(s, a)`` and ``Q̄(s, ζ(s))`` on every step, the reference.
     :param certificate_particles: particles of ``Q̄(s, a)``'s solve, after ``W[1:]``, tried as certificates (and as
         the plan to follow) before solving.
+    :param constant_particles: how many of the last particles hold each control at its lower bound, its upper bound or
+        the nominal plan's value for the whole plan (the directions of ``{-1, 0, 1}^nu`` but zero, in lexicographic
+        order; a robot with two controls has 8): plans a search around ``W`` with noise ``σ`` rarely draws, such as
+        a full turn held for the whole lookahead. 0: every particle is ``W + σ·ε_i``.
     :param n_threads: threads of the rollout pool; ``None``: one per available core; 0: the calling thread.
     :param warm_starts: how many warm plans the rule keeps (one per running env is needed).
     :param env_kwargs: keyword arguments of ``gym.make`` when ``env`` is an id.
@@ -140,6 +145,11 @@ class MujocoShieldingRule(ShieldingRule):
         super().__init__(eta=eta, penalty=penalty)
         if horizon < 2 or n_particles < 1 or temperature <= 0 or noise_std < 0 or alpha < 0:
             raise ValueError("Need horizon >= 2, n_particles >= 1, temperature > 0, noise_std >= 0 and alpha >= 0.")
+        if not 0 <= constant_particles < n_particles:
+            raise ValueError(
+                f"constant_particles={constant_particles} must be in [0, n_particles={n_particles}): particle 0 is the "
+                "nominal plan itself."
+            )
         if not isinstance(constraint, StateConstraint):
             raise TypeError(
                 f"constraint must be a sppo_sb3.shield.StateConstraint (is_unsafe and distance of rolled steps), got "
@@ -156,16 +166,23 @@ class MujocoShieldingRule(ShieldingRule):
         self.seed = seed
         self.certify = certify
         self.certificate_particles = min(certificate_particles, n_particles - 1)
+        self.constant_particles = constant_particles
         self.n_threads = len(os.sched_getaffinity(0)) if n_threads is None else n_threads
         self._build()
         self.noise = noise_std * np.random.default_rng(seed).standard_normal((n_particles, horizon, self.model.nu))
         self.noise[0] = 0.0
-        if constant_particles:  # the last particles hold one corner of the action box for the whole plan
-            corners = np.array([d for d in itertools.product((-1.0, 0.0, 1.0), repeat=self.model.nu) if any(d)])
-            corners = corners[:constant_particles] * (self.action_high - self.action_low)
-            self.noise[n_particles - len(corners) :] = corners[:, None, :]
+        if constant_particles:
+            self.noise[n_particles - constant_particles :] = self.held_directions(constant_particles)[:, None, :]
         self.warm_starts = WarmStarts(warm_starts, horizon, self.model.nu)
         self.solve_counts = SolveCounts()
+
+    def held_directions(self, count: int) -> np.ndarray:
+        """``(count, nu)`` noise that, added to any control and clipped, holds it at a bound or leaves it (``ε = 0``)."""
+        directions = [d for d in itertools.product((-1.0, 0.0, 1.0), repeat=self.model.nu) if any(d)]
+        if count > len(directions):
+            n = len(directions)
+            raise ValueError(f"constant_particles={count}: a robot with {self.model.nu} controls has {n} directions.")
+        return np.array(directions[:count]) * (self.action_high - self.action_low)
 
     # --- MuJoCo objects: rebuilt after unpickling ---------------------------------------------------------------
 

@@ -26,7 +26,8 @@ the robot's motion changes by about that much when it pushes one. The constraint
   The margin covers the weld's lag. The path ahead costs nothing yet: the constraint says which steps cost
   (:meth:`NavigationConstraint.costly`), so that the rule enters a path before it touches anything, and inside one
   leads the robot out ahead of the gremlin or outwards (:meth:`NavigationConstraint.keep_out_depth`), looking
-  :data:`GREMLIN_LOOKAHEAD_SECONDS` ahead. Still a prediction: a robot held where the gremlin will come, with no way
+  :data:`GREMLIN_LOOKAHEAD_SECONDS` ahead, with :data:`GREMLIN_HELD_PARTICLES` of its plans holding the controls at
+  their bounds. Still a prediction: a robot held where the gremlin will come, with no way
   out within the lookahead, can be reached;
 - **walls** (Circle 1 and 2, exact): ``|x|`` (and ``|y|``) beyond 1.125.
 """
@@ -55,6 +56,10 @@ LOOKAHEAD_SECONDS = 0.3
 #: how far ahead they look where gremlins move (Button 1 and 2): far enough for the backup to find the way out of a
 #: gremlin's path before it comes, round what blocks the shortest (a hazard, a wrong button)
 GREMLIN_LOOKAHEAD_SECONDS = 0.4
+#: particles of each solve that hold a turn or a drive at full control where gremlins move (all 8 directions of the
+#: robots' two controls): the way out of a gremlin's path round a hazard is a turn held, then a drive, which noise
+#: around the warm plan rarely draws in time
+GREMLIN_HELD_PARTICLES = 8
 #: a button this close to the goal is the goal button (the env puts the goal on it; buttons keep 0.4 m apart)
 GOAL_ON_BUTTON = 1e-3
 #: metres added to a gremlin's reach for the lag of its box behind the circling mocap body it is welded to
@@ -380,7 +385,8 @@ class NavigationShieldingRule(MujocoShieldingRule):
     :param n_particles: MPPI particles per solve (half :class:`MujocoShieldingRule`'s: the robots have two controls).
     :param horizon: ``H_m`` in env steps (``None``: :data:`LOOKAHEAD_SECONDS` of the robot's steps,
         :data:`GREMLIN_LOOKAHEAD_SECONDS` where gremlins move).
-    :param kwargs: further settings of :class:`MujocoShieldingRule` (``eta``, ``noise_std``, ...).
+    :param kwargs: further settings of :class:`MujocoShieldingRule` (``eta``, ``noise_std``, ...;
+        ``constant_particles`` defaults to :data:`GREMLIN_HELD_PARTICLES` where gremlins move).
     """
 
     def __init__(
@@ -401,8 +407,8 @@ class NavigationShieldingRule(MujocoShieldingRule):
         if horizon is None:
             seconds = GREMLIN_LOOKAHEAD_SECONDS if constraint.gremlin_columns else LOOKAHEAD_SECONDS
             horizon = lookahead_horizon(definition.robot.timestep * FRAME_SKIP, seconds)
-        if constraint.gremlin_columns:
-            kwargs.setdefault("constant_particles", 8)
+        if constraint.gremlin_columns:  # a way out of a gremlin's path round a hazard: a turn held, then a drive
+            kwargs.setdefault("constant_particles", GREMLIN_HELD_PARTICLES)
         super().__init__(layout, constraint, horizon=horizon, alpha=alpha, n_particles=n_particles, **kwargs)
         self._physics = physics_size(self.model)
         self._gremlins = next((g for g in definition.groups if isinstance(g, Gremlins) and g.constrained), None)
