@@ -221,7 +221,8 @@ def test_the_robot_keeps_off_the_path_ahead_of_a_gremlin_not_the_one_behind_it()
 
     def margin(angle: float, sweep: float = constraint.gremlin_sweep) -> float:
         """The first gremlin's margin with the robot on its circle ``angle`` radians ahead of it."""
-        return float(replace(constraint, gremlin_sweep=sweep).gremlin_margins(state, on_circle(angle))[0])
+        swept = replace(constraint, gremlin_sweep=sweep)
+        return float(swept.gremlin_margins(swept.gremlin_frame(state, on_circle(angle)))[0])
 
     assert margin(1.8) < 0 < margin(-1.8)  # the same distance from the box, ahead of it and behind it
     assert margin(4.0) > 0  # beyond the sweep's end
@@ -237,12 +238,12 @@ def test_inside_a_gremlins_path_the_way_out_is_ahead_of_it_or_outwards() -> None
     robot = np.zeros_like(state)
 
     def arrival(angle: float, out: float = 0.0) -> float:
-        return float(constraint.gremlin_arrivals(state, on_circle(angle, out))[0])
+        return float(constraint.gremlin_arrivals(constraint.gremlin_frame(state, on_circle(angle, out)))[0])
 
     def depth(angle: float, out: float = 0.0) -> float:
         robot[:] = state
         robot[1:3] = on_circle(angle, out)  # qpos[0:2]: the robot body's (x, y)
-        return float(constraint.keep_out_depth(robot))
+        return float(constraint.keep_out(robot)[1])
 
     half_width = 2 * np.arcsin(reach / (2 * travel))  # the box reaches a point of its circle this far either side
     assert arrival(half_width + 0.4) == pytest.approx(0.4)

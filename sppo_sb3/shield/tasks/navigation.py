@@ -35,7 +35,7 @@ the robot's motion changes by about that much when it pushes one. The constraint
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import mujoco
 import numpy as np
@@ -67,6 +67,17 @@ GREMLIN_MARGIN = 0.05
 #: seconds of a gremlin's path ahead of it that the robot keeps off, beyond the rule's lookahead (gremlins circle at
 #: one radian per second, so this is also the arc's angle): a plan must not end where a gremlin will be this soon
 GREMLIN_SWEEP = 1.0
+
+
+class GremlinFrame(NamedTuple):
+    """Each gremlin ``(..., n, ·)`` seen from the robot: :meth:`NavigationConstraint.gremlin_frame`."""
+
+    agent: np.ndarray  #: ``(..., 2)`` the robot's (x, y)
+    time: np.ndarray  #: ``(..., 1)`` the state's time
+    boxes: np.ndarray  #: where each gremlin's box is
+    centres: np.ndarray  #: its circle's centre
+    offsets: np.ndarray  #: the robot's offset from the centre
+    ahead: np.ndarray  #: the robot's angle ahead of the box along the circle
 
 
 def navigation_task(robot: str, task: str, level: int) -> NavigationTask:
@@ -163,7 +174,7 @@ class NavigationConstraint(StateConstraint):
     def margins(self, states: np.ndarray) -> np.ndarray:
         """``(..., k)`` the signed distance of each constraint that costs (``<= 0``: violated) in states ``(..., nstate)``:
         hazards, pillars and vases, gremlins where they are, wrong buttons, walls; the gremlins' paths ahead are
-        :meth:`keep_out_margins`."""
+        :meth:`keep_out`."""
         agent = states[..., 1:3]  # qpos[0:2]: the robot body's (x, y) in the shield model
         parts = []
         for columns, reach in (
@@ -181,29 +192,24 @@ class NavigationConstraint(StateConstraint):
             parts.append(self.wall - extent)
         return np.concatenate(parts, axis=-1) if parts else np.full((*states.shape[:-1], 1), np.inf)
 
-    def keep_out_margins(self, states: np.ndarray) -> np.ndarray:
-        """``(..., n)`` the signed distance of each gremlin's path ahead (:meth:`gremlin_margins`), ``(..., 0)`` without
-        gremlins: kept out of as unsafe, though the env charges nothing there yet."""
-        if not self.gremlin_columns:
-            return np.zeros((*states.shape[:-1], 0))
-        return self.gremlin_margins(states, states[..., 1:3])
+    def keep_out(self, states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The gremlins' paths ahead, kept out of as unsafe though the env charges nothing there yet: ``(..., n)`` the
+        signed distance of each (:meth:`gremlin_margins`) and ``(...)`` how deep the robot is in them
+        (:meth:`keep_out_depth`). Needs gremlins."""
+        frame = self.gremlin_frame(states, states[..., 1:3])
+        margins = self.gremlin_margins(frame)
+        return margins, self.keep_out_depth(frame, margins)
 
-    def keep_out_depth(self, states: np.ndarray, margins: np.ndarray | None = None) -> np.ndarray:
-        """``(...)`` how deep the robot is in the gremlins' paths ahead: the depth of the deepest, plus the arc the
-        gremlin has left to travel before it can touch the robot short of the sweep (:meth:`gremlin_arrivals`), so that
-        a robot inside leaves ahead of the gremlin or outwards, not only the shortest way (into a wrong button).
-
-        :param margins: the states' :meth:`keep_out_margins`, if computed already.
-        """
-        margins = self.keep_out_margins(states) if margins is None else margins
-        if margins.shape[-1] == 0:
-            return np.zeros(states.shape[:-1])
-        early = self.gremlin_travel * np.maximum(self.gremlin_sweep - self.gremlin_arrivals(states, states[..., 1:3]), 0.0)
+    def keep_out_depth(self, frame: GremlinFrame, margins: np.ndarray) -> np.ndarray:
+        """``(...)`` how deep the robot is in the gremlins' paths ahead (their ``margins``): the depth of the deepest,
+        plus the arc the gremlin has left to travel before it can touch the robot short of the sweep
+        (:meth:`gremlin_arrivals`), so that a robot inside leaves ahead of the gremlin or outwards, not only the shortest
+        way (into a wrong button)."""
+        early = self.gremlin_travel * np.maximum(self.gremlin_sweep - self.gremlin_arrivals(frame), 0.0)
         return np.max(np.where(margins <= 0, early - margins, 0.0), axis=-1)
 
-    def gremlin_frame(self, states: np.ndarray, agent: np.ndarray) -> tuple[np.ndarray, ...]:
-        """The state's time ``(..., 1)``, and per gremlin ``(..., n, ·)``: its box, its circle's centre, the robot's
-        offset from the centre and its angle ahead of the box along the circle.
+    def gremlin_frame(self, states: np.ndarray, agent: np.ndarray) -> GremlinFrame:
+        """Where each gremlin is, and its circle, seen from a robot at ``agent`` ``(..., 2)`` (:class:`GremlinFrame`).
 
         A gremlin at time ``t`` is at ``c + travel · (sin t, cos t)`` (``Gremlins.mocap_target``, one radian per
         second), so its centre ``c`` follows from where it is.
@@ -213,26 +219,22 @@ class NavigationConstraint(StateConstraint):
         centres = boxes - self.gremlin_travel * np.stack([np.sin(time), np.cos(time)], axis=-1)
         offsets = agent[..., None, :] - centres
         ahead = np.mod(np.arctan2(offsets[..., 0], offsets[..., 1]) - time, 2 * np.pi)
-        return time, boxes, centres, offsets, ahead
+        return GremlinFrame(agent, time, boxes, centres, offsets, ahead)
 
-    def gremlin_margins(self, states: np.ndarray, agent: np.ndarray) -> np.ndarray:
+    def gremlin_margins(self, frame: GremlinFrame) -> np.ndarray:
         """``(..., n)`` the robot's distance to the reach of each gremlin's path over the next ``gremlin_sweep`` seconds:
         its distance to the circle where the robot's direction from the centre lies on the arc, else to the nearer
-        end (:meth:`gremlin_frame`)."""
-        time, boxes, centres, offsets, ahead = self.gremlin_frame(states, agent)
-        end = time + self.gremlin_sweep
-        ends = centres + self.gremlin_travel * np.stack([np.sin(end), np.cos(end)], axis=-1)
-        to_ends = np.minimum(
-            np.linalg.norm(boxes - agent[..., None, :], axis=-1), np.linalg.norm(ends - agent[..., None, :], axis=-1)
-        )
-        to_circle = np.abs(np.linalg.norm(offsets, axis=-1) - self.gremlin_travel)
-        return np.where(ahead <= self.gremlin_sweep, to_circle, to_ends) - self.gremlin_reach
+        end."""
+        agent, end = frame.agent[..., None, :], frame.time + self.gremlin_sweep
+        ends = frame.centres + self.gremlin_travel * np.stack([np.sin(end), np.cos(end)], axis=-1)
+        to_ends = np.minimum(np.linalg.norm(frame.boxes - agent, axis=-1), np.linalg.norm(ends - agent, axis=-1))
+        to_circle = np.abs(np.linalg.norm(frame.offsets, axis=-1) - self.gremlin_travel)
+        return np.where(frame.ahead <= self.gremlin_sweep, to_circle, to_ends) - self.gremlin_reach
 
-    def gremlin_arrivals(self, states: np.ndarray, agent: np.ndarray) -> np.ndarray:
+    def gremlin_arrivals(self, frame: GremlinFrame) -> np.ndarray:
         """``(..., n)`` seconds until each gremlin's box comes within reach of the robot where it is (0: it is;
         ``inf``: never, the robot being out of reach of the circle)."""
-        _, _, _, offsets, ahead = self.gremlin_frame(states, agent)
-        radius, travel = np.linalg.norm(offsets, axis=-1), self.gremlin_travel
+        radius, travel, ahead = np.linalg.norm(frame.offsets, axis=-1), self.gremlin_travel, frame.ahead
         cosine = (radius**2 + travel**2 - self.gremlin_reach**2) / np.maximum(2 * radius * travel, 1e-12)
         half_width = np.arccos(np.clip(cosine, -1.0, 1.0))  # the box is within reach this far either side of the robot
         within = (ahead <= half_width) | (ahead >= 2 * np.pi - half_width)
@@ -261,11 +263,11 @@ class NavigationConstraint(StateConstraint):
         violated, depth = self.violated(margins), np.maximum(-nearest, 0.0)
         if not self.gremlin_columns:
             return ConstraintCosts(violated, np.maximum(nearest, 0.0), depth, None)
-        keep_out = self.keep_out_margins(states)
+        keep_out, keep_out_depth = self.keep_out(states)
         return ConstraintCosts(
             unsafe=violated | np.any(keep_out <= 0, axis=-1),
             distance=np.maximum(np.minimum(nearest, np.min(keep_out, axis=-1)), 0.0),
-            depth=np.maximum(depth, self.keep_out_depth(states, keep_out)),
+            depth=np.maximum(depth, keep_out_depth),
             costly=(violated, depth),
         )
 
