@@ -5,7 +5,7 @@ Each run trains one variant for ``--steps`` env steps (the hyperparameters of ``
 interventions, the intervention rate over the last ``--window`` steps, the mean return of the last 10 training
 episodes, and the deterministic policy's return and violations deployed with and without the shield. Finished runs
 are skipped (resume by running the same command again); ``--summary`` prints the table: means over seeds with their
-95% percentile-bootstrap intervals (``sppo_sb3.experiments.stats``, as the grid's tables).
+95% percentile-bootstrap intervals (``sppo_lab.stats``, as the grid's tables).
 
     python scripts/bench_absorbing.py --steps 30000 --seeds 0 1 2 3 4 --variants head-restart tdmpc-restart sailr
     python scripts/bench_absorbing.py --summary
@@ -23,17 +23,18 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import torch as th
-import yaml
 from stable_baselines3.common.callbacks import BaseCallback
 
 import sppo_sb3  # noqa: F401  (registers the task)
+from sppo_lab import stats, tables
+from sppo_lab.configs import RUNS_DIR
 from sppo_sb3 import SAILR, SPPO
+from sppo_sb3.algorithms import HYPERPARAMS_DIR
 from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY
 from sppo_sb3.evaluation import evaluate_deployment
-from sppo_sb3.experiments import stats, tables
+from sppo_sb3.zoo import constructor_kwargs
 
 ENV_ID = "SafePointCircle-v0"
-ROOT = Path(__file__).resolve().parent.parent
 VARIANTS: dict[str, dict[str, Any]] = {
     "head-restart": dict(absorbing="restart", termination_model=True),
     "head-terminate": dict(absorbing="terminate", termination_model=True),
@@ -65,11 +66,10 @@ class StepRecorder(BaseCallback):
 
 
 def zoo_kwargs(algo: str) -> dict[str, Any]:
-    """The task's hyperparameters from ``hyperparams/<algo>.yml`` as constructor arguments (``*_kwargs`` evaluated)."""
-    entry = dict(yaml.safe_load((ROOT / "hyperparams" / f"{algo}.yml").read_text())[ENV_ID])
-    entry.pop("n_timesteps", None)
-    entry.pop("policy", None)
-    return {k: eval(v) if k.endswith("_kwargs") and isinstance(v, str) else v for k, v in entry.items()}
+    """The task's hyperparameters from ``hyperparams/<algo>.yml`` as constructor arguments (the package's loader)."""
+    kwargs = constructor_kwargs(HYPERPARAMS_DIR / f"{algo}.yml", ENV_ID)
+    kwargs.pop("policy", None)
+    return kwargs
 
 
 def run(variant: str, seed: int, steps: int, window: int, eval_episodes: int) -> dict[str, Any]:
@@ -103,7 +103,7 @@ def run(variant: str, seed: int, steps: int, window: int, eval_episodes: int) ->
 
 INTERVAL_HEADER = (
     f"`mean [low, high]`: mean over seeds and its {stats.CONFIDENCE:.0%} percentile-bootstrap confidence interval over "
-    f"seeds ({stats.BOOTSTRAP_REPS} resamples, sppo_sb3.experiments.stats); the mean alone for one seed."
+    f"seeds ({stats.BOOTSTRAP_REPS} resamples, sppo_lab.stats); the mean alone for one seed."
 )
 
 
@@ -147,7 +147,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=30_000)
     parser.add_argument("--window", type=int, default=5_000, help="the intervention rate is measured over the last steps")
     parser.add_argument("--eval-episodes", type=int, default=5)
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "benchmarks" / "absorbing")
+    parser.add_argument("--out", type=Path, default=RUNS_DIR / "absorbing")
     parser.add_argument("--summary", action="store_true", help="print the table of the finished runs and exit")
     parser.add_argument("--threads", type=int, default=1, help="torch threads per process (run two processes on 2 cores)")
     args = parser.parse_args(argv)

@@ -4,7 +4,7 @@ Runs, in one process:
 
 - ``replay``: the observations and proposed actions of a real shielded training run on ``--task`` (a MuJoCo task with
   a registered :class:`~sppo_sb3.shield.MujocoShieldingRule`: ``SafeHalfCheetahHeight-v1`` by default, or a velocity
-  task such as ``sppo_sb3/SafetyHopperVelocity-v1``; SPPO at the small configuration of ``hyperparams/small/sppo.yml``
+  task such as ``sppo_sb3/SafetyHopperVelocity-v1``; SPPO at the small configuration of ``lab/hyperparams/small/sppo.yml``
   (``hyperparams/velocity/sppo.yml``, the same, on the velocity tasks),
   or SAILR at ``hyperparams/sailr.yml``; recorded once into ``--states``, then reused) are replayed through the
   task's rule, certified (the default) and full
@@ -39,8 +39,9 @@ import mujoco
 import numpy as np
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
+from sppo_lab.configs import LAB_HYPERPARAMS_DIR
+from sppo_lab.recording import RecordingRule
 from sppo_sb3.envs.velocity import VELOCITY_TASKS
-from sppo_sb3.experiments.recording import RecordingRule
 from sppo_sb3.shield import SHIELDING_RULES, MujocoShieldingRule, rule_parameters_of
 from sppo_sb3.shield.base import ShieldingRule
 from sppo_sb3.shield.tasks.cheetah import HalfCheetahHeightShieldingRule, rollout_heights_python
@@ -49,7 +50,7 @@ from sppo_sb3.zoo import constructor_kwargs
 
 ENV_ID = "SafeHalfCheetahHeight-v1"
 ROOT = Path(__file__).resolve().parents[1]
-HYPERPARAMS = {"sppo": ROOT / "hyperparams" / "small" / "sppo.yml", "sailr": ROOT / "hyperparams" / "sailr.yml"}
+HYPERPARAMS = {"sppo": LAB_HYPERPARAMS_DIR / "small" / "sppo.yml", "sailr": ROOT / "hyperparams" / "sailr.yml"}
 #: the velocity tasks' settings: the velocity benchmark's (the same small TOLD for SPPO)
 VELOCITY_HYPERPARAMS = ROOT / "hyperparams" / "velocity"
 VELOCITY_IDS = frozenset(task.env_id for task in VELOCITY_TASKS)

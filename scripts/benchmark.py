@@ -1,9 +1,9 @@
 """Run the paper's comparison grid (algorithms × tasks × seeds) through the package's own training entry point.
 
-A thin command line over :mod:`sppo_sb3.experiments` (see ``--help``). Every run is ``python -m sppo_sb3.train
+A thin command line over :mod:`sppo_lab` (see ``--help``). Every run is ``python -m sppo_sb3.train
 --algo ALGO --env TASK [-conf HYPERPARAMS/ALGO.yml] [-n STEPS] --seed S ...`` in a subprocess, so it is exactly what a
 user gets from ``sppo-train``; its results go to ``OUT/<task>/<algo>/seed_<s>/`` (``curve.csv``, ``summary.json``,
-``train.log``, ``hyperparams.yml``, ``zoo/`` and the ``DONE`` marker: :mod:`sppo_sb3.experiments.layout`). Finished
+``train.log``, ``hyperparams.yml``, ``zoo/`` and the ``DONE`` marker: :mod:`sppo_lab.layout`). Finished
 runs are skipped (``--force`` reruns them); failed ones are retried.
 
 Examples::
@@ -20,7 +20,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from sppo_sb3.experiments.benchmark import main
+from sppo_lab.benchmark import main
 
 if __name__ == "__main__":
     sys.exit(main(default_hyperparams_dir=Path(__file__).resolve().parents[1] / "hyperparams"))

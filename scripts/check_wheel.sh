@@ -61,6 +61,8 @@ names = zipfile.ZipFile(sys.argv[1]).namelist()
 for needed in ("sppo_sb3/hyperparams/sppo.yml", "sppo_sb3/hyperparams/velocity/pdo.yml", "sppo_sb3/hyperparams/dmc/sppo.yml"):
     assert needed in names, f"the wheel lacks {needed}: see [options.package_data] in setup.cfg"
 assert "sppo_sb3/docs_tables.py" not in names, "the wheel ships sppo_sb3/docs_tables.py (a repository tool)"
+lab = [n for n in names if n.startswith(("sppo_lab/", "sppo_sb3/experiments/")) or "_probe/" in n or "point_sweep/" in n]
+assert not lab, f"the wheel ships the lab (its home is lab/, outside the wheel): {lab[:5]}"
 print(f"check_wheel: {sys.argv[1]}: {sum(n.endswith('.yml') for n in names)} yml files")
 EOF
 
@@ -76,9 +78,10 @@ case "$site/" in
   "$repo"/*) fail "sppo_sb3 imports from the checkout ($site), not from the installed wheel" ;;
 esac
 "$bin/python" -c "
-from sppo_sb3.experiments.configs import REPO_HYPERPARAMS_DIR, resolve_config
-assert REPO_HYPERPARAMS_DIR.is_dir() and str(REPO_HYPERPARAMS_DIR).startswith('$site'), REPO_HYPERPARAMS_DIR
-assert 'SafePointCircle-v0' in resolve_config('sppo', 'SafePointCircle-v0', REPO_HYPERPARAMS_DIR)
+from sppo_sb3.algorithms import HYPERPARAMS_DIR
+from sppo_sb3.zoo import constructor_kwargs
+assert HYPERPARAMS_DIR.is_dir() and str(HYPERPARAMS_DIR).startswith('$site'), HYPERPARAMS_DIR
+assert constructor_kwargs(HYPERPARAMS_DIR / 'sppo.yml', 'SafePointCircle-v0')
 "
 
 # ---- sppo-train without -conf (tiny networks and episodes: this checks the plumbing, not learning), then sppo-enjoy

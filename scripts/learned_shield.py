@@ -1,4 +1,4 @@
-"""A learned ``Q̄`` on the Point Robot scored as a shield uses it: ``sppo_sb3.experiments.learned_shield`` (``--help``).
+"""A learned ``Q̄`` on the Point Robot scored as a shield uses it: ``sppo_lab.learned_shield`` (``--help``).
 
 python scripts/learned_shield.py                 # the figures of docs/results.md (shield refinement)
 python scripts/learned_shield.py --steps 3000 --hold 1   # a warm-up's uniform walk: almost no danger to learn
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import sys
 
-from sppo_sb3.experiments.learned_shield import main
+from sppo_lab.learned_shield import main
 
 if __name__ == "__main__":
     sys.exit(main())

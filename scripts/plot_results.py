@@ -1,6 +1,6 @@
 """Figures and tables of the paper's comparison from a ``scripts/benchmark.py`` output folder.
 
-A thin command line over :mod:`sppo_sb3.experiments` (see ``--help``). Writes to ``--out``:
+A thin command line over :mod:`sppo_lab` (see ``--help``). Writes to ``--out``:
 
 - ``learning_curves.png``: episode return vs env steps, mean over seeds with its 95% bootstrap CI, one panel per task
   (Figs. 5–6 left);
@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import sys
 
-from sppo_sb3.experiments.plot import main
+from sppo_lab.plot import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -17,8 +17,8 @@ import argparse
 
 import numpy as np
 
+from sppo_lab.point_lap import LAP_TARGETS, lap_ceiling
 from sppo_sb3.envs.point_circle import PointParams, point_is_unsafe, point_step
-from sppo_sb3.experiments.point_lap import LAP_TARGETS, lap_ceiling
 from sppo_sb3.shield.analysis.bounds import adoptability_gap, theorem1_bound
 from sppo_sb3.shield.tasks.point import PointCircleShieldingRule, paper_point_rule
 

@@ -6,16 +6,17 @@ and prints one markdown row per run: the mean episode length and the reward per 
 A learner that stalls shows as flat blocks; one that falls early shows as short episodes.
 
     python scripts/probe_table.py results/velocity_probe --block 5000
-    python scripts/probe_table.py docs/benchmarks/velocity --block 20000 --runs sppo sppo-previous   # two grid rows
+    python scripts/probe_table.py lab/runs/velocity --block 20000 --runs sppo sppo-previous   # two grid rows
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import pandas as pd
+
+from sppo_lab import layout
 
 
 def block_means(curve: pd.DataFrame, block: int, steps: int) -> tuple[list[float], list[float]]:
@@ -30,8 +31,8 @@ def block_means(curve: pd.DataFrame, block: int, steps: int) -> tuple[list[float
 
 def run_row(run: Path, block: int) -> dict[str, object]:
     """One row of the table from a finished run's ``curve.csv`` and ``summary.json``."""
-    summary = json.loads((run / "summary.json").read_text())
-    lengths, per_step = block_means(pd.read_csv(run / "curve.csv"), block, int(summary["steps"]))
+    summary = layout.read_summary(run)
+    lengths, per_step = block_means(layout.read_curve(run), block, int(summary["steps"]))
     return {
         "task": summary["task"].split("/")[-1].removeprefix("Safety").removesuffix("Velocity-v1"),
         "run": run.parent.name,  # <algo>[-<variant>]: a folder renamed after its run (sppo-previous) says so
@@ -55,13 +56,10 @@ def main() -> None:
     parser.add_argument("--runs", nargs="+", default=None, help="only these <algo>[-<variant>] folders (default: all)")
     args = parser.parse_args()
     runs = sorted(
-        done.parent
-        for out in args.out
-        for done in out.glob("*/*/seed_*/DONE")
-        if args.runs is None or done.parent.parent.name in args.runs
+        run for out in args.out for run in layout.finished_run_dirs(out) if args.runs is None or run.parent.name in args.runs
     )
     if not runs:
-        raise SystemExit(f"no finished runs (…/seed_*/DONE) under {', '.join(map(str, args.out))}")
+        raise SystemExit(f"no finished runs under {', '.join(map(str, args.out))} (the layout of sppo_lab.layout)")
     rows = [run_row(run, args.block) for run in runs]
     print("| " + " | ".join(rows[0]) + " |")
     print("|" + "---|" * len(rows[0]))

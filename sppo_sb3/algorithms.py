@@ -2,7 +2,7 @@
 
 Each :class:`Algorithm` names its class by module and attribute (it is imported only when asked for, so that
 reading the list imports no algorithm) and carries what the zoo (:mod:`sppo_sb3.zoo`), the benchmark and the plots
-(:mod:`sppo_sb3.experiments`) need to know about it. rl-zoo3's own algorithms that the paper compares against
+(:mod:`sppo_lab`) need to know about it. rl-zoo3's own algorithms that the paper compares against
 (Fig. 7: DDPG, PPO; and SAC, TD3) are listed for display only, in :data:`ZOO_BASELINES`. The package also has
 algorithms the paper does not compare (``paper=False``: SACLag), which the benchmark runs only when asked to.
 """

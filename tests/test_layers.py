@@ -39,7 +39,7 @@ FLOORS: tuple[tuple[str, ...], ...] = (
         "sppo_sb3.train",
         "sppo_sb3.enjoy",
         "sppo_sb3.record_video",
-        "sppo_sb3.experiments",
+        "sppo_lab",
     ),
 )
 

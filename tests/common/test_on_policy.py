@@ -21,6 +21,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from tiny_hyperparams import QUICK_CSC, TINY_ON_POLICY
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
+from sppo_lab.configs import REPO_HYPERPARAMS_DIR as HYPERPARAMS_DIR
 from sppo_sb3.common.cost_buffer import CostRolloutBuffer
 from sppo_sb3.common.cost_policy import CostActorCriticPolicy
 from sppo_sb3.common.costs import MissingCostError
@@ -30,7 +31,6 @@ from sppo_sb3.common.lagrange import DEFAULT_COST_LIMIT
 from sppo_sb3.common.safety import EpisodeCostTracker, SafetyMetrics
 from sppo_sb3.cpo import CPO
 from sppo_sb3.csc import CSC
-from sppo_sb3.experiments.configs import REPO_HYPERPARAMS_DIR as HYPERPARAMS_DIR
 from sppo_sb3.pdo import PDO
 from sppo_sb3.sailr import SAILR
 

@@ -19,9 +19,9 @@ import pytest
 import yaml
 from tiny_hyperparams import TINY_ZOO
 
+from sppo_lab import benchmark, grid
 from sppo_sb3 import zoo
 from sppo_sb3.envs.dmc import ACTION_REPEAT, FIG7_DMC_TASKS, INSTALL_HINT, ActionRepeat, action_repeat, dmc_id
-from sppo_sb3.experiments import benchmark, grid
 
 REPO = Path(__file__).resolve().parents[2]
 DMC_HYPERPARAMS = REPO / "hyperparams" / "dmc"

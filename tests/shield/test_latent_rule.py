@@ -10,8 +10,8 @@ from test_quality import point_pairs
 from tiny_hyperparams import TINIEST_TOLD, TINY_SPPO, TINY_TOLD
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
+from sppo_lab.learned_shield import held_action_walk, score_table
 from sppo_sb3 import SPPO
-from sppo_sb3.experiments.learned_shield import held_action_walk, score_table
 from sppo_sb3.shield import LatentModelRule, PointCircleShieldingRule
 from sppo_sb3.shield.registry import LATENT_POINT_RULE, latent_point_rule
 from sppo_sb3.sppo.policies import TOLD

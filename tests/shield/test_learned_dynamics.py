@@ -13,9 +13,9 @@ from test_quality import point_pairs
 from tiny_hyperparams import TINIEST_TOLD
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
+from sppo_lab.learned_shield import held_action_walk
 from sppo_sb3 import SPPO
 from sppo_sb3.envs.point_circle import PointParams, point_distance_to_unsafe, point_is_unsafe
-from sppo_sb3.experiments.learned_shield import held_action_walk
 from sppo_sb3.shield import LearnedDynamicsRule, PointCircleShieldingRule
 from sppo_sb3.shield.analysis import quality
 from sppo_sb3.shield.registry import LEARNED_POINT_RULE

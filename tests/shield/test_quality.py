@@ -75,7 +75,7 @@ def test_the_reference_scores_itself_perfectly_and_the_trivial_predictors_as_doc
 
 
 def test_the_learned_shield_script_prints_every_predictors_scores(capsys: pytest.CaptureFixture[str]) -> None:
-    from sppo_sb3.experiments import learned_shield
+    from sppo_lab import learned_shield
 
     argv = ["--warmup-steps", "300", "--steps", "400", "--gradient-steps", "100", "--model-steps", "100", "--seeds", "1"]
     assert learned_shield.main([*argv, "--training-steps", "500", "--latent", "untrained"]) == 0
@@ -99,7 +99,7 @@ def test_the_learned_shield_script_prints_every_predictors_scores(capsys: pytest
 
 
 def test_a_training_runs_pairs_are_what_the_recording_rule_was_asked_to_shield() -> None:
-    from sppo_sb3.experiments.recording import RecordingRule
+    from sppo_lab.recording import RecordingRule
 
     rule, recording = PointCircleShieldingRule(), RecordingRule(PointCircleShieldingRule())
     batches = [point_pairs(n, seed) for n, seed in ((3, 4), (5, 5))]

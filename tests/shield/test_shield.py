@@ -16,11 +16,11 @@ from hypothesis import strategies as st
 from stable_baselines3.common.vec_env import DummyVecEnv
 from tiny_hyperparams import TINY_ROLLOUT
 
+from sppo_lab.point_lap import run_scripted_lap
 from sppo_sb3.common.costs import shaped_cost
 from sppo_sb3.common.keys import ADVANTAGE_KEY, COST_KEY, PROPOSED_ACTION_KEY
 from sppo_sb3.envs.point_circle import PointParams, point_distance_to_unsafe, point_is_unsafe, point_step
 from sppo_sb3.evaluation import deployment_rule, evaluate_deployment
-from sppo_sb3.experiments.point_lap import run_scripted_lap
 from sppo_sb3.pdo import PDO
 from sppo_sb3.sailr import SAILR
 from sppo_sb3.shield import (

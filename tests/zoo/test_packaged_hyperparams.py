@@ -16,8 +16,8 @@ import yaml
 from rl_zoo3.exp_manager import ExperimentManager
 
 import sppo_sb3  # registers the tasks with gymnasium
+from sppo_lab import configs
 from sppo_sb3.algorithms import ALGORITHMS, HYPERPARAMS_DIR
-from sppo_sb3.experiments import configs
 from sppo_sb3.zoo import FAMILY_FOLDERS, SafeExperimentManager, default_config
 
 REPO_HYPERPARAMS = Path(__file__).resolve().parents[2] / "hyperparams"

@@ -32,6 +32,7 @@ from sppo_sb3.shield import ShieldingRule, ShieldWrapper
 
 REPO = Path(__file__).resolve().parents[2]
 HYPERPARAMS = REPO / "hyperparams"
+LAB_HYPERPARAMS = REPO / "lab" / "hyperparams"
 ENV = "SafePointCircle-v0"
 SHORT_EPISODES = ["--env-kwargs", "max_episode_steps:50"]
 
@@ -156,8 +157,8 @@ def test_train_cli_prints_safety_summary(tmp_path: Path) -> None:
 def test_train_cli_deploys_a_zoo_algorithm_that_keeps_no_safety_metrics(tmp_path: Path) -> None:
     """rl-zoo3's own SAC keeps no safety metrics: its training costs are monitor.csv's, and its final policy's deployment
     is still measured and saved, so a grid's table has the unconstrained reference's deployed cost too."""
-    from sppo_sb3.experiments.spec import RunSpec
-    from sppo_sb3.experiments.summary import model_safety_summary, read_monitor_curve, summarize
+    from sppo_lab.spec import RunSpec
+    from sppo_lab.summary import model_safety_summary, read_monitor_curve, summarize
 
     cmd = [sys.executable, "-m", "sppo_sb3.train", "--algo", "sac", "--env", ENV, "-n", "128", "-f", str(tmp_path)]
     cmd += ["--seed", "0", "--eval-freq", "-1", "--num-threads", "1", "--device", "cpu", *SHORT_EPISODES]
@@ -178,10 +179,12 @@ def test_train_cli_deploys_a_zoo_algorithm_that_keeps_no_safety_metrics(tmp_path
 
 
 def _yml_file_entries() -> list[tuple[Path, str]]:
-    """Every entry of ``hyperparams/*.yml`` and of its variant folders (``small/``, ``point_sweep/NAME/``, ...; ``dmc/``
-    has test_dmc.py)."""
-    variants = [path for path in sorted(HYPERPARAMS.glob("*/**/*.yml")) if path.relative_to(HYPERPARAMS).parts[0] != "dmc"]
-    files = sorted(HYPERPARAMS.glob("*.yml")) + variants
+    """Every entry of the production files, ``hyperparams/*.yml`` and its suite folders, and of the lab's probe and sweep
+    configs (``lab/hyperparams/``), which the benchmark's resume must still build (the dm_control ones have
+    test_dmc.py)."""
+    suites = [path for path in sorted(HYPERPARAMS.glob("*/**/*.yml")) if path.relative_to(HYPERPARAMS).parts[0] != "dmc"]
+    lab = [path for path in sorted(LAB_HYPERPARAMS.glob("**/*.yml")) if path.relative_to(LAB_HYPERPARAMS).parts[0] != "dmc_cpu"]
+    files = sorted(HYPERPARAMS.glob("*.yml")) + suites + lab
     return [(path, env_id) for path in files for env_id in yaml.safe_load(path.read_text())]
 
 
@@ -198,7 +201,7 @@ def test_yml_coverage() -> None:
 
 
 def _entry_id(value: object) -> str:
-    return str(value.relative_to(HYPERPARAMS)) if isinstance(value, Path) else str(value)
+    return str(value.relative_to(REPO)) if isinstance(value, Path) else str(value)
 
 
 #: tasks of hyperparams/ that an example registers (``--gym-packages examples.<module>``)
@@ -319,7 +322,7 @@ def test_episode_interventions_count_a_shield_wrappers_replacements(tmp_path: Pa
     import gymnasium as gym
     from stable_baselines3.common.monitor import Monitor
 
-    from sppo_sb3.experiments.summary import monitor_interventions
+    from sppo_lab.summary import monitor_interventions
 
     for name, shielded in (("shielded", True), ("alone", False)):
         env: gym.Env = gym.make(ENV, max_episode_steps=40)

@@ -2,9 +2,9 @@
 
 OmniSafe (PKU-Alignment/omnisafe, ``benchmarks/{off,on}-policy/README.md``, Table 2) publishes, per Safety-Gymnasium
 velocity task, the final policy's episode reward and episode cost (cost limit 25), mean ± std over 5 seeds, after 1e6
-env steps (off-policy; Humanoid 3e6) or 1e7 (on-policy). ``docs/benchmarks/omnisafe_velocity.md`` has every row with
+env steps (off-policy; Humanoid 3e6) or 1e7 (on-policy). ``lab/runs/omnisafe_velocity.md`` has every row with
 its lines; :data:`OMNISAFE_VELOCITY` holds those of the algorithms this package runs. Our rows are
-:func:`~sppo_sb3.experiments.stats.aggregate`'s; on these tasks a step costs 0 or 1, so a run's violations are its
+:func:`~sppo_lab.stats.aggregate`'s; on these tasks a step costs 0 or 1, so a run's violations are its
 cost.
 """
 
@@ -13,10 +13,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from sppo_lab.display import VELOCITY_TASK_NAMES, algo_sort_key, display_name, task_title
+from sppo_lab.suites import OMNISAFE_COMMIT, PublishedRow, overview_markdown, published_tables_markdown
+from sppo_lab.tables import values_cell
 from sppo_sb3.envs.velocity import ANT, HALF_CHEETAH, HOPPER, SWIMMER, WALKER2D
-from sppo_sb3.experiments.display import VELOCITY_TASK_NAMES, algo_sort_key, display_name, task_title
-from sppo_sb3.experiments.suites import OMNISAFE_COMMIT, PublishedRow, overview_markdown, published_tables_markdown
-from sppo_sb3.experiments.tables import values_cell
 
 #: the published algorithms of :data:`OMNISAFE_VELOCITY` and their budgets: SAC, SACLag, CPO, and PPOLag (the
 #: counterpart of this package's PDO)
@@ -77,7 +77,7 @@ def target_return(task: str = TARGET_TASK) -> float:
 def velocity_tables_markdown(table: pd.DataFrame) -> str:
     """One table per velocity task: our algorithms (mean [95% CI] over seeds), then OmniSafe's published rows.
 
-    :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
+    :param table: :func:`~sppo_lab.stats.aggregate`'s output.
     """
     caption = (
         "Ours: the training runs' last 10 episodes; the final policy deployed for 10 deterministic episodes with its\n"
@@ -90,9 +90,9 @@ def velocity_tables_markdown(table: pd.DataFrame) -> str:
 
 
 def velocity_overview_markdown(table: pd.DataFrame) -> str:
-    """The grid at a glance (:func:`~sppo_sb3.experiments.suites.overview_markdown`) with the velocity tasks' names.
+    """The grid at a glance (:func:`~sppo_lab.suites.overview_markdown`) with the velocity tasks' names.
 
-    :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
+    :param table: :func:`~sppo_lab.stats.aggregate`'s output.
     """
     return overview_markdown(table, VELOCITY_TASK_NAMES, "--velocity")
 
@@ -116,7 +116,7 @@ def late_episodes(curve: pd.DataFrame, share: float = LATE_SHARE) -> dict[str, f
     pays 1 per step alive plus the forward speed; a step above the velocity limit costs 1. The three figures tell a
     learner that falls from one that buys its return with speed over the limit.
 
-    :param curve: the run's learning curve (:data:`~sppo_sb3.experiments.layout.CURVE_COLUMNS`).
+    :param curve: the run's learning curve (:data:`~sppo_lab.layout.CURVE_COLUMNS`).
     :param share: the share of the run's env steps at its end.
     """
     steps = curve["timesteps"].astype(float)
@@ -158,7 +158,7 @@ def steps_to_return(curve: pd.DataFrame, target: float, window: int = TARGET_WIN
     """When a run's training return first reaches ``target``: the mean of its last ``window`` episodes, episode by
     episode (fewer at the start), against ``target``.
 
-    :param curve: the run's learning curve (:data:`~sppo_sb3.experiments.layout.CURVE_COLUMNS`).
+    :param curve: the run's learning curve (:data:`~sppo_lab.layout.CURVE_COLUMNS`).
     :param target: the return.
     :param window: episodes averaged.
     :return: ``steps`` and ``seconds`` (monitor clock) at the end of that episode and ``cost``, the training cost paid

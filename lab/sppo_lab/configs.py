@@ -11,9 +11,15 @@ import yaml
 
 from sppo_sb3.algorithms import ALGORITHMS, HYPERPARAMS_DIR
 
-#: the benchmark's default ``--hyperparams-dir``: the package's yml files (:data:`~sppo_sb3.algorithms.HYPERPARAMS_DIR`,
-#: the repository's ``hyperparams/`` in a checkout, their packaged copy in an installed wheel)
+#: the benchmark's default ``--hyperparams-dir``: the package's production yml files
+#: (:data:`~sppo_sb3.algorithms.HYPERPARAMS_DIR`, the repository's ``hyperparams/``)
 REPO_HYPERPARAMS_DIR = HYPERPARAMS_DIR
+#: the lab's folder in the repository (``lab/``)
+LAB_DIR = Path(__file__).resolve().parents[1]
+#: the lab's probe and sweep configs, one folder per variant (``--hyperparams-dir lab/hyperparams/<suite>_probe/<variant>``)
+LAB_HYPERPARAMS_DIR = LAB_DIR / "hyperparams"
+#: the committed raw runs of the tables in ``docs/results.md``, one folder per grid
+RUNS_DIR = LAB_DIR / "runs"
 
 
 def _load_yml(path: Path) -> dict[str, Any]:

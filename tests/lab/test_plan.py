@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from sppo_sb3.experiments import benchmark, grid, layout, plan
+from sppo_lab import benchmark, grid, layout, plan
 
 REPO = Path(__file__).resolve().parents[2]
 POINT, CHEETAH = "SafePointCircle-v0", "SafeHalfCheetahHeight-v1"

@@ -31,10 +31,10 @@ import gymnasium as gym
 import numpy as np
 import torch as th
 
+from sppo_lab.configs import REPO_HYPERPARAMS_DIR
+from sppo_lab.recording import RecordingRule
 from sppo_sb3.common.keys import COST_KEY, SHAPED_COST_KEY
 from sppo_sb3.envs.point_circle import PointParams, point_distance_to_unsafe, point_is_unsafe
-from sppo_sb3.experiments.configs import REPO_HYPERPARAMS_DIR
-from sppo_sb3.experiments.recording import RecordingRule
 from sppo_sb3.shield import (
     LatentModelRule,
     LearnedCostCriticRule,

@@ -7,8 +7,8 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from sppo_sb3.experiments.display import display_name, env_steps_per_step, task_title
-from sppo_sb3.experiments.stats import BOOTSTRAP_REPS, EARLY_FRACTION, IQM_MIN_SEEDS, order_of_magnitude, seed_intervals
+from sppo_lab.display import display_name, env_steps_per_step, task_title
+from sppo_lab.stats import BOOTSTRAP_REPS, EARLY_FRACTION, IQM_MIN_SEEDS, order_of_magnitude, seed_intervals
 
 #: the paper's Tables I (Point Robot) and II (Half-Cheetah): violations' order of magnitude, safety rate mean, std
 PAPER_TABLES: dict[str, dict[str, tuple[str, float, float]]] = {
@@ -65,7 +65,7 @@ def estimate_cell(row: pd.Series, key: str, digits: int = 2) -> str:
 
 
 def values_cell(values: Sequence[float], digits: int = 2) -> str:
-    """``mean [low, high]`` of per-seed ``values`` (:func:`~sppo_sb3.experiments.stats.seed_intervals`): the mean alone
+    """``mean [low, high]`` of per-seed ``values`` (:func:`~sppo_lab.stats.seed_intervals`): the mean alone
     where fewer than 2 finite values remain, ``–`` where none do. Non-finite values (a run without the figure) are left
     out."""
     x = np.asarray(values, dtype=float)
@@ -122,7 +122,7 @@ def _safety_row(row: pd.Series, paper: dict[str, tuple[str, float, float]], iqm_
 def safety_tables_markdown(table: pd.DataFrame) -> str:
     """Tables I–II in markdown: ours (order of magnitude, mean [95% CI], safety rate, IQM) beside the paper's.
 
-    :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
+    :param table: :func:`~sppo_lab.stats.aggregate`'s output.
     """
     lines = [
         "<!-- written by scripts/plot_results.py -->",
@@ -158,10 +158,10 @@ def safety_tables_markdown(table: pd.DataFrame) -> str:
 def returns_table_markdown(table: pd.DataFrame) -> str:
     """Final training returns (mean [95% CI] over seeds, IQM) per task and algorithm, for the Fig. 7 comparison.
 
-    Env steps count the action repeat of the dm_control tasks (:func:`~sppo_sb3.experiments.display.env_steps_per_step`),
+    Env steps count the action repeat of the dm_control tasks (:func:`~sppo_lab.display.env_steps_per_step`),
     as the paper and TD-MPC do.
 
-    :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
+    :param table: :func:`~sppo_lab.stats.aggregate`'s output.
     """
     iqm = _has_iqm(table, "return_last_n")
     lines = ["<!-- written by scripts/plot_results.py --fig7 -->", INTERVAL_LEGEND, ""]

@@ -1,6 +1,6 @@
 """The experiment tooling end to end: the benchmark on a tiny grid, then the plots on its output.
 
-The command lines of scripts/benchmark.py and scripts/plot_results.py (:mod:`sppo_sb3.experiments`), called in process;
+The command lines of scripts/benchmark.py and scripts/plot_results.py (:mod:`sppo_lab`), called in process;
 2 algorithms x 1 task x 2 seeds with a few hundred env steps and tiny networks (a hyperparameter folder written to
 ``tmp_path``), each run a real ``python -m sppo_sb3.train`` subprocess. Most of the time is the runs' start-up.
 """
@@ -18,8 +18,8 @@ import pytest
 import yaml
 from tiny_hyperparams import tiny_pdo_yml
 
-from sppo_sb3.experiments import benchmark, configs, display, grid, layout, plot, provenance, runner, stats, tables
-from sppo_sb3.experiments.spec import run_name
+from sppo_lab import benchmark, configs, display, grid, layout, plot, provenance, runner, stats, tables
+from sppo_lab.spec import run_name
 
 SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
 TASK = "SafePointCircle-v0"
@@ -199,8 +199,8 @@ def test_steps_and_config_resolution(tiny_hyperparams: Path) -> None:
 def test_default_grid_holds_the_papers_five_algorithms() -> None:
     """An algorithm the paper does not compare (SACLag) is in the one list, runs with ``--algos``, but is not in the
     default grid nor in the paper-scale plan."""
+    from sppo_lab import plan
     from sppo_sb3.algorithms import ALGORITHMS
-    from sppo_sb3.experiments import plan
 
     assert grid.OUR_ALGOS == plan.PAPER_ALGOS == ("sppo", "pdo", "cpo", "sailr", "csc")
     assert not ALGORITHMS["saclag"].paper and "saclag" not in grid.OUR_ALGOS

@@ -3,9 +3,9 @@
 Runs go to parallel local processes (``--workers``, default: the number of cores) or, with ``--ray-address``, to Ray
 tasks on an existing cluster. A run with a ``DONE`` marker is skipped (``--force`` reruns it); a run that failed
 leaves ``FAILED`` and is retried by the next invocation. The algorithms are the package's (configured by
-``--hyperparams-dir``) and any of rl-zoo3's built-in ones (:func:`~sppo_sb3.experiments.configs.resolve_config`).
+``--hyperparams-dir``) and any of rl-zoo3's built-in ones (:func:`~sppo_lab.configs.resolve_config`).
 ``--plan`` prints the paper-scale grid's (or with ``--velocity`` or ``--navigation`` that grid's) core-hours and what is
-left of it, from the throughput of the runs in ``--out`` (:mod:`~sppo_sb3.experiments.plan`).
+left of it, from the throughput of the runs in ``--out`` (:mod:`~sppo_lab.plan`).
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from sppo_sb3.experiments import grid, layout, plan
-from sppo_sb3.experiments.configs import REPO_HYPERPARAMS_DIR
-from sppo_sb3.experiments.runner import dry_run_command, finalize, import_ray, progress_line, run_local, run_ray
-from sppo_sb3.experiments.spec import RunSpec
+from sppo_lab import grid, layout, plan
+from sppo_lab.configs import REPO_HYPERPARAMS_DIR
+from sppo_lab.runner import dry_run_command, finalize, import_ray, progress_line, run_local, run_ray
+from sppo_lab.spec import RunSpec
 
 DESCRIPTION = "Run the paper's comparison grid (algorithms × tasks × seeds) through the package's own training entry point."
 
@@ -56,7 +56,7 @@ def parse_args(argv: Sequence[str] | None = None, default_hyperparams_dir: Path 
         "--variant",
         default="",
         help="name these runs as a variant of their algorithms, run under other settings (e.g. --hyperparams-dir\n"
-        "hyperparams/point_shielded --variant shielded): folders OUT/<task>/<algo>-<variant>, rows 'CPO (shielded)'",
+        "lab/hyperparams/point_shielded --variant shielded): folders OUT/<task>/<algo>-<variant>, rows 'CPO (shielded)'",
     )
     parser.add_argument("--quick", action="store_true", help="tiny preset: 2 seeds, 2048 steps (Half-Cheetah: 256)")
     fig7 = (
@@ -164,7 +164,7 @@ def run_grid(todo: Sequence[RunSpec], args: argparse.Namespace) -> list[RunSpec]
 
 
 def print_plan(args: argparse.Namespace) -> int:
-    """Print the plan (:func:`~sppo_sb3.experiments.plan.plan_markdown`) of the paper-scale grid, or with
+    """Print the plan (:func:`~sppo_lab.plan.plan_markdown`) of the paper-scale grid, or with
     ``--velocity`` / ``--navigation`` of the suite's grid the options name (its algorithms, tasks, seeds; ``--steps``
     or its budget), with the runs left in ``--out``; returns the exit status.
 

@@ -1,12 +1,12 @@
 """The run-folder format of the benchmark, written by the runner and read by the plots: defined here only.
 
 A grid's output folder ``OUT`` holds one folder per run, ``OUT/<task>/<name>/seed_<s>/`` (``name``: the algorithm's, or
-``<algo>-<variant>`` for a variant, :func:`~sppo_sb3.experiments.spec.run_name`), with:
+``<algo>-<variant>`` for a variant, :func:`~sppo_lab.spec.run_name`), with:
 
 - ``curve.csv``: one row per finished training episode, the columns :data:`CURVE_COLUMNS`: ``timesteps`` (env steps
   at its end), ``episode``, ``return``, ``length``, ``cost``, ``violations``, ``cumulative_violations``, ``time``
   (from rl-zoo3's ``monitor.csv`` with the package's ``episode_cost``/``episode_violations`` columns);
-- ``summary.json``: the run's figures (:func:`sppo_sb3.experiments.summary.summarize`);
+- ``summary.json``: the run's figures (:func:`sppo_lab.summary.summarize`);
 - ``hyperparams.yml`` (the exact config used, when one is passed), ``train.log`` (the run's output) and ``zoo/``
   (rl-zoo3's run folder: model, monitor.csv, args);
 - ``DONE``: the marker of a finished run; ``FAILED`` (the log's tail) marks a run that failed.

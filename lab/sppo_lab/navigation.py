@@ -1,6 +1,6 @@
 """The navigation benchmark's tables: our runs beside OmniSafe's published rows on the three tasks of ``--navigation``.
 
-OmniSafe publishes the navigation tasks at three budgets and two cost limits (``docs/benchmarks/omnisafe_navigation.md``,
+OmniSafe publishes the navigation tasks at three budgets and two cost limits (``lab/runs/omnisafe_navigation.md``,
 every row with its lines): off-policy at 3e6 env steps (SAC, SACLag; PointGoal1 and CarGoal1), on-policy at 1e7 (PPOLag,
 CPO; all three tasks), and model-based at 1e6 with a cost limit of 1 (PETS, SafeLOOP, CCEPETS; PointGoal1 and CarGoal1;
 these agents observed the robot's coordinates, OmniSafe's ``-modelbased`` variant of the task, not the lidar).
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from sppo_sb3.experiments.suites import OMNISAFE_COMMIT, PublishedRow, overview_markdown, published_tables_markdown
+from sppo_lab.suites import OMNISAFE_COMMIT, PublishedRow, overview_markdown, published_tables_markdown
 
 POINT_GOAL1, CAR_GOAL1, POINT_BUTTON1 = (f"sppo_sb3/Safety{name}-v0" for name in ("PointGoal1", "CarGoal1", "PointButton1"))
 
@@ -23,7 +23,7 @@ def _rows(*values: tuple[str, float, float, float, float, float, float]) -> tupl
 
 
 #: OmniSafe's rows of the algorithms this package runs (SAC, SACLag, PPOLag for PDO, CPO) and of the model-based
-#: agents, per task of :data:`~sppo_sb3.experiments.grid.NAVIGATION`
+#: agents, per task of :data:`~sppo_lab.grid.NAVIGATION`
 OMNISAFE_NAVIGATION: dict[str, tuple[PublishedRow, ...]] = {
     POINT_GOAL1: _rows(
         ("SAC", 3e6, 27.04, 1.49, 67.57, 32.13, 25.0),
@@ -55,7 +55,7 @@ NAVIGATION_TASK_NAMES = {POINT_GOAL1: "PointGoal1", CAR_GOAL1: "CarGoal1", POINT
 def navigation_tables_markdown(table: pd.DataFrame) -> str:
     """One table per navigation task: our algorithms (mean [95% CI] over seeds), then OmniSafe's published rows.
 
-    :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
+    :param table: :func:`~sppo_lab.stats.aggregate`'s output.
     """
     caption = (
         "Ours: the training runs' last 10 episodes; the final policy deployed for 10 deterministic episodes with its\n"
@@ -69,8 +69,8 @@ def navigation_tables_markdown(table: pd.DataFrame) -> str:
 
 
 def navigation_overview_markdown(table: pd.DataFrame) -> str:
-    """The navigation grid at a glance (:func:`~sppo_sb3.experiments.suites.overview_markdown`).
+    """The navigation grid at a glance (:func:`~sppo_lab.suites.overview_markdown`).
 
-    :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
+    :param table: :func:`~sppo_lab.stats.aggregate`'s output.
     """
     return overview_markdown(table, NAVIGATION_TASK_NAMES, "--navigation")

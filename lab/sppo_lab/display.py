@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import re
 
+from sppo_lab.spec import split_run_name
 from sppo_sb3.algorithms import ALGORITHMS, DISPLAY_ORDER, ZOO_BASELINES
 from sppo_sb3.envs.dmc import action_repeat
 from sppo_sb3.envs.velocity import VELOCITY_TASKS
-from sppo_sb3.experiments.spec import split_run_name
 
 #: the paper's names of its constrained tasks
 TASK_NAMES: dict[str, str] = {"SafePointCircle-v0": "Point Robot", "SafeHalfCheetahHeight-v1": "Half-Cheetah"}

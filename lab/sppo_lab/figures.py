@@ -1,7 +1,7 @@
 """The comparison's figures (Figs. 5–7 of the paper): curves over env steps and violation bars, one panel per task.
 
 Means over seeds are drawn with their 95% bootstrap confidence intervals
-(:func:`~sppo_sb3.experiments.stats.curve_band`, :func:`~sppo_sb3.experiments.stats.seed_intervals`). Needs matplotlib
+(:func:`~sppo_lab.stats.curve_band`, :func:`~sppo_lab.stats.seed_intervals`). Needs matplotlib
 and scipy (``pip install "sppo_sb3[plots]"``).
 """
 
@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from sppo_sb3.experiments.display import algo_color, algo_sort_key, display_name, env_steps_per_step, task_title
-from sppo_sb3.experiments.stats import curve_band, seed_intervals
+from sppo_lab.display import algo_color, algo_sort_key, display_name, env_steps_per_step, task_title
+from sppo_lab.stats import curve_band, seed_intervals
 
 #: what the bands and error bars show
 INTERVAL_NOTE = "mean, 95% bootstrap CI"
@@ -52,7 +52,7 @@ def plot_band(ax: Any, band: pd.DataFrame, steps_per_step: int, color: str | Non
     matplotlib chose for the line.
 
     :param ax: the panel.
-    :param band: :func:`~sppo_sb3.experiments.stats.curve_band`'s output.
+    :param band: :func:`~sppo_lab.stats.curve_band`'s output.
     :param steps_per_step: env steps per agent step (action repeat).
     :param color: the line's colour (``None``: matplotlib's next one).
     :param label: the legend's entry.
@@ -150,7 +150,7 @@ def plot_efficiency(runs: pd.DataFrame, task: str, target: float, path: Path, dp
     the training cost it paid until then. Bar: mean over the seeds that reached it; dots: those seeds; an algorithm
     none of whose seeds reached it is marked "not reached" (its cost of the whole run is drawn hollow instead).
 
-    :param runs: :func:`~sppo_sb3.experiments.velocity.seed_efficiency`'s rows.
+    :param runs: :func:`~sppo_lab.velocity.seed_efficiency`'s rows.
     :param task: the task (the title).
     :param target: the return.
     :param path: the PNG written.

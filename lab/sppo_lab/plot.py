@@ -1,7 +1,7 @@
 """The command line of ``scripts/plot_results.py``: the figures and tables of a benchmark output folder.
 
-Writes to ``--out`` the figures of :mod:`sppo_sb3.experiments.figures`, the tables of
-:mod:`sppo_sb3.experiments.tables` and ``aggregate.csv`` (:func:`~sppo_sb3.experiments.stats.aggregate`).
+Writes to ``--out`` the figures of :mod:`sppo_lab.figures`, the tables of
+:mod:`sppo_lab.tables` and ``aggregate.csv`` (:func:`~sppo_lab.stats.aggregate`).
 """
 
 from __future__ import annotations
@@ -12,12 +12,12 @@ from pathlib import Path
 
 import pandas as pd
 
-from sppo_sb3.experiments.display import task_sort_key
-from sppo_sb3.experiments.figures import plot_curves, plot_efficiency, plot_violation_bars
-from sppo_sb3.experiments.navigation import navigation_overview_markdown, navigation_tables_markdown
-from sppo_sb3.experiments.stats import aggregate, load_results
-from sppo_sb3.experiments.tables import returns_table_markdown, safety_tables_markdown
-from sppo_sb3.experiments.velocity import (
+from sppo_lab.display import task_sort_key
+from sppo_lab.figures import plot_curves, plot_efficiency, plot_violation_bars
+from sppo_lab.navigation import navigation_overview_markdown, navigation_tables_markdown
+from sppo_lab.stats import aggregate, load_results
+from sppo_lab.tables import returns_table_markdown, safety_tables_markdown
+from sppo_lab.velocity import (
     TARGET_TASK,
     efficiency_markdown,
     efficiency_table,
@@ -112,7 +112,7 @@ def write_velocity_figures(
     tasks: list[str],
     out: Path,
 ) -> list[str]:
-    """The velocity benchmark's figures and tables (:mod:`sppo_sb3.experiments.velocity`); returns the files' names."""
+    """The velocity benchmark's figures and tables (:mod:`sppo_lab.velocity`); returns the files' names."""
     written = write_cost_curves(args, curves, tasks, out)
     (out / "velocity_tables.md").write_text(velocity_tables_markdown(table))
     (out / "velocity_overview.md").write_text(velocity_overview_markdown(table))

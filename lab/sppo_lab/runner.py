@@ -2,7 +2,7 @@
 
 Every run is ``python -m sppo_sb3.train --algo ALGO --env TASK [-conf HYPERPARAMS/ALGO.yml] [-n STEPS] --seed S ...``
 in a subprocess, so it is exactly what a user gets from ``sppo-train``. Its results go to its run folder
-(:mod:`sppo_sb3.experiments.layout`).
+(:mod:`sppo_lab.layout`).
 """
 
 from __future__ import annotations
@@ -20,10 +20,10 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from sppo_sb3.experiments import layout
-from sppo_sb3.experiments.provenance import run_provenance, source_revision
-from sppo_sb3.experiments.spec import RunSpec
-from sppo_sb3.experiments.summary import (
+from sppo_lab import layout
+from sppo_lab.provenance import run_provenance, source_revision
+from sppo_lab.spec import RunSpec
+from sppo_lab.summary import (
     final_model_path,
     model_safety_summary,
     model_timesteps,

@@ -1,6 +1,6 @@
 """The benchmark on a local Ray instance: a run killed partway is recorded as failed, and a rerun resumes the grid.
 
-``scripts/benchmark.py``'s Ray path (:func:`sppo_sb3.experiments.benchmark.main` with ``--ray-address local``, on a
+``scripts/benchmark.py``'s Ray path (:func:`sppo_lab.benchmark.main` with ``--ray-address local``, on a
 2-CPU instance started here), ``pdo`` × 2 seeds with tiny networks, each run's results sent back by its Ray task. The
 test kills one run's ``sppo_sb3.train`` process (found among this process's descendants) once its first episode is
 logged, then reruns the same command: the finished run is left alone, the killed one runs again and the grid is
@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 from tiny_hyperparams import tiny_pdo_yml
 
-from sppo_sb3.experiments import benchmark, layout
+from sppo_lab import benchmark, layout
 
 ray = pytest.importorskip("ray")
 

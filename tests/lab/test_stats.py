@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from sppo_sb3.experiments import figures, stats, tables
+from sppo_lab import figures, stats, tables
 
 TASK = "SafePointCircle-v0"
 INTERVAL_COLUMNS = ("ci_low", "ci_high", "iqm", "iqm_ci_low", "iqm_ci_high")

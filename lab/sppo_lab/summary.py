@@ -1,8 +1,8 @@
 """What a finished run reports: its learning curve from rl-zoo3's monitor files and its ``summary.json``.
 
 :func:`summarize` is the one place that decides what ``summary.json`` holds. A new figure goes there; to show it as a
-mean ± std over seeds, add its key to :data:`sppo_sb3.experiments.stats.AGGREGATED_KEYS` (``aggregate.csv``), and to
-:data:`~sppo_sb3.experiments.stats.INTERVAL_KEYS` for its bootstrap confidence interval and IQM.
+mean ± std over seeds, add its key to :data:`sppo_lab.stats.AGGREGATED_KEYS` (``aggregate.csv``), and to
+:data:`~sppo_lab.stats.INTERVAL_KEYS` for its bootstrap confidence interval and IQM.
 """
 
 from __future__ import annotations
@@ -17,15 +17,15 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from sppo_sb3.experiments.layout import CURVE_COLUMNS
-from sppo_sb3.experiments.spec import RunSpec
+from sppo_lab.layout import CURVE_COLUMNS
+from sppo_lab.spec import RunSpec
 
 
 def read_monitor_curve(zoo_dir: Path) -> pd.DataFrame:
     """The learning curve of a run from rl-zoo3's ``*.monitor.csv`` files (all training envs, in time order).
 
     :param zoo_dir: rl-zoo3's log folder of the run (searched recursively).
-    :return: a frame with :data:`~sppo_sb3.experiments.layout.CURVE_COLUMNS` (empty when no episode finished).
+    :return: a frame with :data:`~sppo_lab.layout.CURVE_COLUMNS` (empty when no episode finished).
     """
     frames = []
     for path in sorted(zoo_dir.rglob("*monitor.csv")):
@@ -126,7 +126,7 @@ def summarize(
     :param cmd: the train command.
     :param timesteps: env steps of the run (the saved model's ``num_timesteps``); ``None``: the safety summary's, else
         the finished episodes' total length.
-    :param provenance: where the run came from (:func:`~sppo_sb3.experiments.provenance.run_provenance`: the
+    :param provenance: where the run came from (:func:`~sppo_lab.provenance.run_provenance`: the
         commit, the resolved hyperparameters, the installed packages), stored under ``provenance``.
     :param interventions: the interventions of a shield around the env (:func:`monitor_interventions`; ``None``:
         none), used where the model keeps no safety summary of its own.

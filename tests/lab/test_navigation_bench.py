@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from sppo_sb3.experiments import grid, stats
-from sppo_sb3.experiments.navigation import OMNISAFE_NAVIGATION, navigation_overview_markdown, navigation_tables_markdown
+from sppo_lab import grid, stats
+from sppo_lab.navigation import OMNISAFE_NAVIGATION, navigation_overview_markdown, navigation_tables_markdown
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "benchmarks" / "omnisafe_navigation.md"
 ROW = re.compile(

@@ -19,9 +19,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from sppo_sb3.experiments import layout
-from sppo_sb3.experiments.display import algo_sort_key
-from sppo_sb3.experiments.spec import run_name
+from sppo_lab import layout
+from sppo_lab.display import algo_sort_key
+from sppo_lab.spec import run_name
 
 #: the ``summary.json`` figures aggregated as mean and std over seeds
 AGGREGATED_KEYS: tuple[str, ...] = (
@@ -95,12 +95,12 @@ def early_violation_share(curve: pd.DataFrame, steps: float, fraction: float = E
 
 
 def load_results(root: Path) -> tuple[pd.DataFrame, dict[tuple[str, str], list[pd.DataFrame]]]:
-    """The finished runs under a grid's output folder (:mod:`sppo_sb3.experiments.layout`).
+    """The finished runs under a grid's output folder (:mod:`sppo_lab.layout`).
 
     :param root: the benchmark's output folder.
     :return: one row of ``summary.json`` per run, with its :func:`training_return_mean` as ``return_training_mean``,
         its :func:`early_violation_share` as ``violations_early_share``
-        and its row name (:func:`~sppo_sb3.experiments.spec.run_name`: ``cpo-shielded`` for a variant) as ``algo``, and
+        and its row name (:func:`~sppo_lab.spec.run_name`: ``cpo-shielded`` for a variant) as ``algo``, and
         the runs' curves by ``(task, algo)`` (seed order).
     """
     rows: list[dict[str, Any]] = []

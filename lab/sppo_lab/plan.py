@@ -3,7 +3,7 @@ the grid a preset names (``--velocity``), with what is left of it.
 
 Each run of the grid is costed as its measured fixed cost (start-up, saving, the final deployment
 evaluations) plus the grid's env steps times its measured seconds per env step (the monitor's training clock,
-:func:`~sppo_sb3.experiments.summary.summarize`'s ``train_steps_per_s``). One core per run: the benchmark runs every
+:func:`~sppo_lab.summary.summarize`'s ``train_steps_per_s``). One core per run: the benchmark runs every
 train command with one thread (``--num-threads 1``, ``OMP_NUM_THREADS=1``) on the CPU.
 """
 
@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from sppo_sb3.experiments import layout
-from sppo_sb3.experiments.display import algo_sort_key, display_name, task_title
-from sppo_sb3.experiments.grid import OUR_ALGOS
+from sppo_lab import layout
+from sppo_lab.display import algo_sort_key, display_name, task_title
+from sppo_lab.grid import OUR_ALGOS
 
 #: the paper's seeds per task: Point Robot (Table I) 8, Half-Cheetah (Table II) 5
 PAPER_SEEDS: dict[str, range] = {"SafePointCircle-v0": range(8), "SafeHalfCheetahHeight-v1": range(5)}

@@ -13,12 +13,9 @@ import pandas as pd
 import pytest
 from tiny_hyperparams import TINY_SPPO
 
-from sppo_sb3 import SPPO
-from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY
-from sppo_sb3.envs.velocity import ANT
-from sppo_sb3.experiments import layout, plot, stats
-from sppo_sb3.experiments.spec import run_name
-from sppo_sb3.experiments.velocity import (
+from sppo_lab import layout, plot, stats
+from sppo_lab.spec import run_name
+from sppo_lab.velocity import (
     OMNISAFE_VELOCITY,
     TARGET_TASK,
     efficiency_table,
@@ -30,6 +27,9 @@ from sppo_sb3.experiments.velocity import (
     velocity_overview_markdown,
     velocity_tables_markdown,
 )
+from sppo_sb3 import SPPO
+from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY
+from sppo_sb3.envs.velocity import ANT
 
 EPISODE = 1000
 SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"

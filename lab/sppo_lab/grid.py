@@ -6,12 +6,12 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from sppo_lab import layout
+from sppo_lab.configs import resolve_config
+from sppo_lab.spec import RunSpec, check_variant, run_name
 from sppo_sb3.algorithms import PAPER_ALGORITHMS
 from sppo_sb3.envs.dmc import FIG7_DMC_TASKS, dmc_id
 from sppo_sb3.envs.velocity import ANT, HALF_CHEETAH, HOPPER, WALKER2D
-from sppo_sb3.experiments import layout
-from sppo_sb3.experiments.configs import resolve_config
-from sppo_sb3.experiments.spec import RunSpec, check_variant, run_name
 
 #: the paper's comparison: the package's algorithms the paper compares (configured by ``--hyperparams-dir/ALGO.yml``;
 #: the others, e.g. ``saclag``, run when named with ``--algos``)
@@ -131,7 +131,7 @@ def build_grid(
     :param device: PyTorch device.
     :param zoo_args: extra train-command arguments.
     :param last_n: final episodes averaged into the reported return.
-    :param variant: the runs' variant name (:attr:`~sppo_sb3.experiments.spec.RunSpec.variant`; ``""``: none).
+    :param variant: the runs' variant name (:attr:`~sppo_lab.spec.RunSpec.variant`; ``""``: none).
     :raises ValueError: a pair without hyperparameters, or a bad variant name.
     """
     per_task = steps_per_task or {}
@@ -159,7 +159,7 @@ def build_grid(
 
 
 def is_done(spec: RunSpec) -> bool:
-    """Whether the run finished in an earlier invocation (see :func:`sppo_sb3.experiments.layout.is_finished`).
+    """Whether the run finished in an earlier invocation (see :func:`sppo_lab.layout.is_finished`).
 
     :param spec: the run.
     """

@@ -2,8 +2,8 @@
 and the grid at a glance.
 
 OmniSafe (PKU-Alignment/omnisafe) publishes per Safety-Gymnasium task the final policy's episode reward and episode
-cost, mean ± std over 5 seeds, at its own budget and cost limit (``docs/benchmarks/omnisafe_*.md`` has every row with
-its lines). Our rows are :func:`~sppo_sb3.experiments.stats.aggregate`'s; on these tasks a step costs 0 or 1, so a
+cost, mean ± std over 5 seeds, at its own budget and cost limit (``lab/runs/omnisafe_*.md`` has every row with
+its lines). Our rows are :func:`~sppo_lab.stats.aggregate`'s; on these tasks a step costs 0 or 1, so a
 run's violations are its cost.
 """
 
@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from sppo_sb3.experiments.display import algo_sort_key, display_name, task_title
-from sppo_sb3.experiments.spec import split_run_name
-from sppo_sb3.experiments.tables import INTERVAL_LEGEND, estimate_cell
+from sppo_lab.display import algo_sort_key, display_name, task_title
+from sppo_lab.spec import split_run_name
+from sppo_lab.tables import INTERVAL_LEGEND, estimate_cell
 
 #: the OmniSafe commit the published rows were read at
 OMNISAFE_COMMIT = "15603dd7a654a991d0a4648216b69d60b81a6366"
@@ -85,7 +85,7 @@ def published_tables_markdown(
 ) -> str:
     """One table per task: our algorithms (mean [95% CI] over seeds), then OmniSafe's published rows.
 
-    :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
+    :param table: :func:`~sppo_lab.stats.aggregate`'s output.
     :param published: OmniSafe's rows by task id.
     :param caption: what the columns are, above the tables.
     :param mode: ``scripts/plot_results.py``'s option that writes the tables (named in their first line).
@@ -114,7 +114,7 @@ def overview_markdown(table: pd.DataFrame, task_names: Mapping[str, str], mode: 
     other methods (not :data:`OURS`'s variants: earlier settings of the same method), and whether :data:`OURS` is at or
     above it (on the means).
 
-    :param table: :func:`~sppo_sb3.experiments.stats.aggregate`'s output.
+    :param table: :func:`~sppo_lab.stats.aggregate`'s output.
     :param task_names: the tasks' display names (their ids where missing).
     :param mode: ``scripts/plot_results.py``'s option that writes the overview.
     """
