@@ -31,7 +31,7 @@ from sppo_lab.configs import RUNS_DIR
 from sppo_sb3 import SAILR, SPPO
 from sppo_sb3.algorithms import HYPERPARAMS_DIR
 from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY
-from sppo_sb3.evaluation import evaluate_deployment
+from sppo_sb3.shield.evaluation import evaluate_deployment
 from sppo_sb3.zoo import constructor_kwargs
 
 ENV_ID = "SafePointCircle-v0"

@@ -33,7 +33,7 @@ import torch as th
 from torch import nn
 
 from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
-from sppo_sb3.sppo.policies import TOLD
+from sppo_sb3.sppo.world_model import TOLD
 
 OBS_DIM, ACTION_DIM = 17, 6  # Half-Cheetah sizes
 SIZES: dict[str, dict[str, Any]] = {

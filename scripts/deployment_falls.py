@@ -2,7 +2,7 @@
 
 On tasks that end an episode when the robot falls (Hopper, Walker2d, Ant), a low return can come from the policy or
 from the shield's backup, which minimises the constraint's cost and nothing else. This script deploys a saved model
-(its own shield off, with :func:`~sppo_sb3.evaluation.run_episode`) for ``--episodes`` deterministic
+(its own shield off, with :func:`~sppo_sb3.shield.evaluation.run_episode`) for ``--episodes`` deterministic
 episodes, once as it is and once through :class:`~sppo_sb3.shield.ShieldWrapper` with the model's rule, and prints per
 deployment the mean return, episode length, the episodes that ended by termination (a fall), the cost and the
 interventions per episode; for the shielded one, how many steps before each fall the last intervention was. The
@@ -25,7 +25,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3.algorithms import ALGORITHMS
-from sppo_sb3.evaluation import deployment_rule, run_episode
+from sppo_sb3.shield.evaluation import deployment_rule, run_episode
 from sppo_sb3.shield.wrapper import ShieldWrapper
 
 #: a fall "follows" an intervention when it comes within this many steps of it

@@ -8,7 +8,7 @@ from sppo_sb3.csc import CSC
 from sppo_sb3.pdo import PDO
 from sppo_sb3.saclag import SACLag
 from sppo_sb3.sailr import SAILR
-from sppo_sb3.shielded import ShieldRuleLoadError
+from sppo_sb3.shield.persistence import ShieldRuleLoadError
 from sppo_sb3.sppo import SPPO, TOLDPolicy
 
 with open(os.path.join(os.path.dirname(__file__), "version.txt")) as file_handler:

@@ -22,9 +22,10 @@ FLOORS: tuple[tuple[str, ...], ...] = (
     ("sppo_sb3.shield.base",),  # the shield's contract: ShieldingRule and its decisions
     ("sppo_sb3.shield.mujoco", "sppo_sb3.shield.learned", "sppo_sb3.shield.analysis"),  # engines, learned rules, analysis
     ("sppo_sb3.shield.tasks",),  # the built-in tasks' rules, on the engines
-    ("sppo_sb3.shield",),  # the registry behind shield="auto", the wrapper, the shield's public names
-    (  # the algorithms, and what the shielded ones share (loading their rule)
-        "sppo_sb3.shielded",
+    # the registry behind shield="auto", the wrapper, what the learner is told of an intervention, saving and loading a
+    # shielded model's rule, deployment with and without the shield; the shield's public names
+    ("sppo_sb3.shield",),
+    (  # the algorithms
         "sppo_sb3.sppo",
         "sppo_sb3.pdo",
         "sppo_sb3.cpo",
@@ -32,14 +33,12 @@ FLOORS: tuple[tuple[str, ...], ...] = (
         "sppo_sb3.csc",
         "sppo_sb3.saclag",
     ),
-    (  # what uses the algorithms: deployment evaluation, the zoo, the CLIs, the benchmark, the package's front door
+    (  # what uses the algorithms: the zoo, the CLIs, the package's front door
         "sppo_sb3",
-        "sppo_sb3.evaluation",
         "sppo_sb3.zoo",
         "sppo_sb3.train",
         "sppo_sb3.enjoy",
         "sppo_sb3.record_video",
-        "sppo_lab",
     ),
 )
 

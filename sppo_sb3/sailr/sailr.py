@@ -40,9 +40,9 @@ from sppo_sb3.common.keys import INTERVENED_KEY
 from sppo_sb3.common.on_policy import SafeOnPolicyMixin
 from sppo_sb3.sailr.policies import MlpPolicy
 from sppo_sb3.shield.base import ShieldingRule
+from sppo_sb3.shield.persistence import ShieldedLoadMixin
 from sppo_sb3.shield.registry import resolve_shielding_rule
 from sppo_sb3.shield.wrapper import OnIntervention, ShieldWrapper
-from sppo_sb3.shielded import ShieldedLoadMixin
 
 SelfSAILR = TypeVar("SelfSAILR", bound="SAILR")
 

@@ -20,7 +20,7 @@ import torch as th
 from torch import nn
 
 from sppo_sb3.sppo.compile import CompiledFunction
-from sppo_sb3.sppo.policies import TOLD
+from sppo_sb3.sppo.world_model import TOLD
 
 
 def linear_schedule(start: float, end: float, duration: int, step: int) -> float:

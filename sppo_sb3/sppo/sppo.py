@@ -25,16 +25,17 @@ from sppo_sb3.common.safety import SafetyTrackingMixin
 from sppo_sb3.shield.base import ShieldingRule
 from sppo_sb3.shield.learned.base import RefinableRule
 from sppo_sb3.shield.learned.latent import LatentModelRule
+from sppo_sb3.shield.persistence import ShieldedLoadMixin
 from sppo_sb3.shield.registry import resolve_shielding_rule
-from sppo_sb3.shielded import ShieldedLoadMixin
 from sppo_sb3.sppo.buffers import AbsorbingMode, ShieldedReplayBuffer
 from sppo_sb3.sppo.compile import CompiledFunction, CompileMode, check_compile_mode, should_compile
 from sppo_sb3.sppo.optim import init_optimizer_state, supports_tensor_step
 from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
-from sppo_sb3.sppo.policies import TOLDName, TOLDPolicy, check_told_name
+from sppo_sb3.sppo.policies import TOLDPolicy
 from sppo_sb3.sppo.sizes import SizesName, named_sizes
 from sppo_sb3.sppo.time_scale import PAPER_GAMMA, episode_discount, episode_length_of, task_terminates
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, draw_target_heads, topo_update
+from sppo_sb3.sppo.world_model import TOLDName, check_told_name
 
 SelfSPPO = TypeVar("SelfSPPO", bound="SPPO")
 
@@ -100,7 +101,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         (gymnasium's MuJoCo robots that fall: Hopper, Walker2d, Ant, Humanoid and their velocity tasks, see
         :func:`~sppo_sb3.sppo.time_scale.task_terminates`), off elsewhere. ``False`` is TD-MPC's model and the paper's,
         which plans as if no episode ended; the resolved value is :attr:`termination_model`.
-    :param told: TOLD's networks (:class:`~sppo_sb3.sppo.policies.TOLD`): ``"paper"`` (default) is TD-MPC's (v1)
+    :param told: TOLD's networks (:class:`~sppo_sb3.sppo.world_model.TOLD`): ``"paper"`` (default) is TD-MPC's (v1)
         model, the paper's; ``"tdmpc2"`` adds TD-MPC2's robustness pieces: ``Linear → LayerNorm → Mish`` hidden
         layers, a SimNorm latent (softmax over groups of 8; ``latent_dim`` must be a multiple of 8) and five Q heads,
         whose TD target is the min of two drawn at random per update and whose mean the planner and the policy use.

@@ -16,7 +16,7 @@ import torch as th
 
 from sppo_sb3.sppo.buffers import SequenceSamples
 from sppo_sb3.sppo.optim import apply_gradients, clip_by_total_norm, ema_update
-from sppo_sb3.sppo.policies import TOLD
+from sppo_sb3.sppo.world_model import TOLD
 
 
 @dataclass

@@ -22,7 +22,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 import sppo_sb3  # noqa: F401  (registers the tasks with gymnasium)
 from sppo_sb3.common.keys import DEPLOYMENT_SHIELDED, DEPLOYMENT_UNSHIELDED
 from sppo_sb3.common.monitor import CostEvalCallback
-from sppo_sb3.evaluation import evaluate_deployment
+from sppo_sb3.shield.evaluation import evaluate_deployment
 from sppo_sb3.zoo.budget import penalised_objective, resolve_violation_budget
 from sppo_sb3.zoo.hyperparams import default_config, eval_kwargs_strings, merge_kwargs
 

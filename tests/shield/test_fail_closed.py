@@ -34,7 +34,7 @@ from sppo_sb3.shield import (
     in_shielding_set,
     register_shielding_rule,
 )
-from sppo_sb3.shielded import ShieldRuleLoadError
+from sppo_sb3.shield.persistence import ShieldRuleLoadError
 
 SPPO_TINY = {**TINY_SPPO, "seed": 0}
 BRAKE = PointCircleShieldingRule()

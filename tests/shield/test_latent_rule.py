@@ -14,7 +14,7 @@ from sppo_lab.learned_shield import held_action_walk, score_table
 from sppo_sb3 import SPPO
 from sppo_sb3.shield import LatentModelRule, PointCircleShieldingRule
 from sppo_sb3.shield.registry import LATENT_POINT_RULE, latent_point_rule
-from sppo_sb3.sppo.policies import TOLD
+from sppo_sb3.sppo.world_model import TOLD
 
 REFERENCE = PointCircleShieldingRule()
 

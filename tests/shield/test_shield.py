@@ -20,7 +20,6 @@ from sppo_lab.point_lap import run_scripted_lap
 from sppo_sb3.common.costs import shaped_cost
 from sppo_sb3.common.keys import ADVANTAGE_KEY, COST_KEY, PROPOSED_ACTION_KEY
 from sppo_sb3.envs.point_circle import PointParams, point_distance_to_unsafe, point_is_unsafe, point_step
-from sppo_sb3.evaluation import deployment_rule, evaluate_deployment
 from sppo_sb3.pdo import PDO
 from sppo_sb3.sailr import SAILR
 from sppo_sb3.shield import (
@@ -37,6 +36,7 @@ from sppo_sb3.shield import (
     resolve_shielding_rule,
 )
 from sppo_sb3.shield.base import advantage_from_values
+from sppo_sb3.shield.evaluation import deployment_rule, evaluate_deployment
 from sppo_sb3.shield.registry import PAPER_POINT_RULE
 from sppo_sb3.shield.tasks.point import paper_point_rule
 

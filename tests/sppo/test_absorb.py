@@ -13,14 +13,15 @@ from tiny_hyperparams import SMALL_TOLD, TINIEST_MPPI, TINIEST_TOLD, TINY_ROLLOU
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3 import PDO, SPPO
 from sppo_sb3.envs.point_circle import PointParams, point_is_unsafe, point_step
-from sppo_sb3.evaluation import evaluate_deployment
 from sppo_sb3.shield import LearnedCostCriticRule, PointCircleShieldingRule, ShieldWrapper
 from sppo_sb3.shield.analysis.bounds import adoptability_gap, discounted_violation, theorem1_bound
+from sppo_sb3.shield.evaluation import evaluate_deployment
 from sppo_sb3.sppo.buffers import SequenceSamples
 from sppo_sb3.sppo.optim import init_optimizer_state
 from sppo_sb3.sppo.planner import policy_rollout, trajectory_return
-from sppo_sb3.sppo.policies import TOLD, TOLDPolicy
+from sppo_sb3.sppo.policies import TOLDPolicy
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, topo_update
+from sppo_sb3.sppo.world_model import TOLD
 
 GAMMA = 0.9
 

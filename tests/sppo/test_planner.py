@@ -17,7 +17,7 @@ from sppo_sb3.sppo.planner import (
     trajectory_return,
     warm_start,
 )
-from sppo_sb3.sppo.policies import ELU, TOLD
+from sppo_sb3.sppo.world_model import ELU, TOLD
 
 
 def tiny_model(obs_dim: int = 3, action_dim: int = 2) -> TOLD:

@@ -20,8 +20,9 @@ from sppo_sb3.sppo.buffers import SequenceSamples
 from sppo_sb3.sppo.compile import CompiledFunction
 from sppo_sb3.sppo.optim import init_optimizer_state
 from sppo_sb3.sppo.planner import MPPIConfig, _Cast, draw_noise, low_precision_copy, mppi
-from sppo_sb3.sppo.policies import ELU, TOLD, SimNorm, TOLDPolicy, zero_last_layer
+from sppo_sb3.sppo.policies import TOLDPolicy
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, draw_target_heads, td_target, topo_update, value_loss
+from sppo_sb3.sppo.world_model import ELU, TOLD, SimNorm, zero_last_layer
 
 OBS, ACT, H, B = 3, 2, 3, 5
 TDMPC2_TOLD = {**TINY_TOLD, "latent_dim": 16}  # two SimNorm groups

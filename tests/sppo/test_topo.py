@@ -18,8 +18,8 @@ import torch as th
 from sppo_sb3.sppo.buffers import SequenceSamples
 from sppo_sb3.sppo.compile import CompiledFunction
 from sppo_sb3.sppo.optim import init_optimizer_state
-from sppo_sb3.sppo.policies import TOLD, zero_last_layer
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, model_loss, td_target, topo_update
+from sppo_sb3.sppo.world_model import TOLD, zero_last_layer
 
 OBS, ACT, H, B = 3, 2, 3, 5
 

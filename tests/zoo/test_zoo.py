@@ -27,8 +27,8 @@ from tiny_hyperparams import TINY_ROLLOUT, TINY_ZOO
 from sppo_sb3 import zoo
 from sppo_sb3.algorithms import ALGORITHMS, DISPLAY_ORDER, ZOO_BASELINES, Algorithm
 from sppo_sb3.common.monitor import COST_INFO_KEYWORDS, CostEvalCallback, EpisodeCostInfo, cost_monitored_make_vec_env
-from sppo_sb3.evaluation import deployment_rule
 from sppo_sb3.shield import ShieldingRule, ShieldWrapper
+from sppo_sb3.shield.evaluation import deployment_rule
 
 REPO = Path(__file__).resolve().parents[2]
 HYPERPARAMS = REPO / "hyperparams"
@@ -183,7 +183,9 @@ def _yml_file_entries() -> list[tuple[Path, str]]:
     configs (``lab/hyperparams/``), which the benchmark's resume must still build (the dm_control ones have
     test_dmc.py)."""
     suites = [path for path in sorted(HYPERPARAMS.glob("*/**/*.yml")) if path.relative_to(HYPERPARAMS).parts[0] != "dmc"]
-    lab = [path for path in sorted(LAB_HYPERPARAMS.glob("**/*.yml")) if path.relative_to(LAB_HYPERPARAMS).parts[0] != "dmc_cpu"]
+    lab = [
+        path for path in sorted(LAB_HYPERPARAMS.glob("**/*.yml")) if path.relative_to(LAB_HYPERPARAMS).parts[0] != "dmc_cpu"
+    ]
     files = sorted(HYPERPARAMS.glob("*.yml")) + suites + lab
     return [(path, env_id) for path in files for env_id in yaml.safe_load(path.read_text())]
 
