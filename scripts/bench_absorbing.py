@@ -36,12 +36,12 @@ from sppo_sb3.zoo import constructor_kwargs
 
 ENV_ID = "SafePointCircle-v0"
 VARIANTS: dict[str, dict[str, Any]] = {
-    "head-restart": dict(absorbing="restart", termination_model=True),
-    "head-terminate": dict(absorbing="terminate", termination_model=True),
-    "tdmpc-restart": dict(absorbing="restart", termination_model=False),
-    "tdmpc-terminate": dict(absorbing="terminate", termination_model=False),
-    "head-restart-R10": dict(absorbing="restart", termination_model=True, absorbing_penalty=-10.0),
-    "tdmpc-restart-R10": dict(absorbing="restart", termination_model=False, absorbing_penalty=-10.0),
+    "head-restart": dict(on_intervention="restart", termination_model=True),
+    "head-terminate": dict(on_intervention="terminate", termination_model=True),
+    "tdmpc-restart": dict(on_intervention="restart", termination_model=False),
+    "tdmpc-terminate": dict(on_intervention="terminate", termination_model=False),
+    "head-restart-R10": dict(on_intervention="restart", termination_model=True, penalty=10.0),
+    "tdmpc-restart-R10": dict(on_intervention="restart", termination_model=False, penalty=10.0),
     "sailr": {},
 }
 

@@ -223,7 +223,7 @@ class TimedRule(ShieldingRule):
     """A rule that times every call of ``rule.shield`` and counts the env steps it shielded."""
 
     def __init__(self, rule: ShieldingRule) -> None:
-        super().__init__(eta=rule.eta, penalty=rule.penalty)
+        super().__init__(eta=rule.eta)
         self.rule, self.gamma = rule, getattr(rule, "gamma", 0.99)
         self.seconds, self.steps = 0.0, 0
 

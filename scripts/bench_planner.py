@@ -36,6 +36,7 @@ from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
 from sppo_sb3.sppo.world_model import TOLD
 
 OBS_DIM, ACTION_DIM = 17, 6  # Half-Cheetah sizes
+GAMMA = 0.99  # the paper's discount
 SIZES: dict[str, dict[str, Any]] = {
     # the class defaults (TD-MPC): N=512 (+25 policy samples), k=64, J=6, H=5, hidden 512, latent 50
     "td-mpc": dict(latent_dim=50, encoder_dim=256, hidden_dim=512, config=MPPIConfig()),
@@ -132,8 +133,8 @@ def reference_plan(model: TOLD, obs: th.Tensor, cfg: MPPIConfig) -> th.Tensor:
             zs, value = z.repeat(n + p, 1), th.zeros(n + p, 1, device=obs.device)
             for t in range(h):
                 zs, reward = model.next(zs, seq[t])
-                value += cfg.gamma**t * reward
-            value += cfg.gamma**h * model.min_q(zs, model.policy(zs, cfg.policy_std))
+                value += GAMMA**t * reward
+            value += GAMMA**h * model.min_q(zs, model.policy(zs, cfg.policy_std))
             elite_value, idx = value.squeeze(1).topk(cfg.num_elites)
             elites = seq[:, idx]
             score = th.exp(cfg.temperature * (elite_value - elite_value.max()))
@@ -164,7 +165,7 @@ def run(device: th.device, n_envs_list: list[int], repeats: int, sizes: list[str
             rows = [("reference fp32", ref_s, ref_flops, peak32)]
             for name, variant, peak in [("fp32", cfg, peak32), ("bf16", replace(cfg, dtype="bfloat16"), peak16)]:
                 for compiled in (False, True):
-                    planner = MPPIPlanner(variant, ACTION_DIM, device, compile=compiled)
+                    planner = MPPIPlanner(variant, ACTION_DIM, GAMMA, device, compile=compiled)
                     plan = partial(planner.plan, model, obs, planner.initial_mean(n_envs), 10**9)
                     if compiled:
                         start = time.perf_counter()

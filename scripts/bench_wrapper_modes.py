@@ -1,8 +1,8 @@
-"""SAC behind ``ShieldWrapper`` on SafePointCircle-v0: ``on_intervention="execute"`` against ``"absorb"``.
+"""SAC behind ``ShieldWrapper`` on SafePointCircle-v0: ``on_intervention="continue"`` against ``"terminate"``.
 
 For each mode and seed: SAC trains for ``--steps`` env steps behind the shield; reported are the training
 violations and interventions, then the return, violations and interventions of the deterministic policy over
-``--eval-episodes`` full episodes in the shielded env (``"execute"``: the real task, whatever the training mode).
+``--eval-episodes`` full episodes in the shielded env (``"continue"``: the real task, whatever the training mode).
 
     python scripts/bench_wrapper_modes.py --steps 5000 --seeds 0 1
 """
@@ -20,7 +20,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 import sppo_sb3  # noqa: F401  (registers the task)
 from sppo_sb3.common.keys import COST_KEY
 from sppo_sb3.shield import PointCircleShieldingRule, ShieldWrapper
-from sppo_sb3.shield.wrapper import OnIntervention
+from sppo_sb3.shield.intervention import OnIntervention
 
 ENV_ID = "SafePointCircle-v0"
 
@@ -60,7 +60,8 @@ def evaluate(model: SAC, episodes: int, seed: int) -> dict[str, float]:
 
 def run(mode: OnIntervention, seed: int, steps: int, eval_episodes: int) -> dict[str, float | int | str]:
     """Train SAC behind the shield in ``mode`` and evaluate it."""
-    env = ShieldWrapper(gym.make(ENV_ID), PointCircleShieldingRule(), on_intervention=mode)
+    penalty = 1.0 if mode == "terminate" else 0.0  # eq. 7's R̃ = -1 for the absorbing step; the shielded env otherwise
+    env = ShieldWrapper(gym.make(ENV_ID), PointCircleShieldingRule(), on_intervention=mode, penalty=penalty)
     model = SAC("MlpPolicy", env, learning_starts=1000, seed=seed, verbose=0)
     counts = Counts()
     model.learn(steps, callback=counts)
@@ -79,7 +80,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1])
     parser.add_argument("--eval-episodes", type=int, default=2)
     args = parser.parse_args()
-    for mode in ("execute", "absorb"):
+    for mode in ("continue", "terminate"):
         for seed in args.seeds:
             print(json.dumps(run(mode, seed, args.steps, args.eval_episodes)), flush=True)
 

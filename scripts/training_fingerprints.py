@@ -43,18 +43,18 @@ CONFIGS: dict[str, tuple[Callable[[], Any], int]] = {
     "sppo_point_latent_rule": (lambda: SPPO("TOLDPolicy", POINT, seed=3, shield=f"{POINT}:latent", **TINY_SPPO), 300),
     "sppo_cheetah_height": (lambda: SPPO("TOLDPolicy", CHEETAH, seed=0, **{**TINY_SPPO, "learning_starts": 30}), 80),
     "sppo_hopper_velocity": (lambda: SPPO("TOLDPolicy", HOPPER, seed=0, **{**TINY_SPPO, "learning_starts": 30}), 80),
-    "sppo_point_terminate": (lambda: SPPO("TOLDPolicy", POINT, seed=4, absorbing="terminate", **TINY_SPPO), 300),
+    "sppo_point_terminate": (lambda: SPPO("TOLDPolicy", POINT, seed=4, on_intervention="terminate", **TINY_SPPO), 300),
     "sppo_point_continue": (
-        lambda: SPPO("TOLDPolicy", POINT, seed=5, absorbing="continue", absorbing_penalty=-0.5, **TINY_SPPO),
+        lambda: SPPO("TOLDPolicy", POINT, seed=5, on_intervention="continue", penalty=0.5, **TINY_SPPO),
         300,
     ),
-    "sppo_point_none": (lambda: SPPO("TOLDPolicy", POINT, seed=6, absorbing="none", **TINY_SPPO), 300),
+    "sppo_point_none": (lambda: SPPO("TOLDPolicy", POINT, seed=6, on_intervention="none", **TINY_SPPO), 300),
     "sppo_hopper_auto_gamma": (
         lambda: SPPO("TOLDPolicy", HOPPER, seed=1, gamma="auto", **{**TINY_SPPO, "learning_starts": 30}),
         80,
     ),
-    "sac_point_wrapper_execute": (lambda: shielded_sac("execute", seed=0), 300),
-    "sac_point_wrapper_absorb": (lambda: shielded_sac("absorb", seed=1), 300),
+    "sac_point_wrapper_continue": (lambda: shielded_sac("continue", seed=0), 300),
+    "sac_point_wrapper_terminate": (lambda: shielded_sac("terminate", seed=1, penalty=1.0), 300),
     "sac_point_wrapper_takeover": (lambda: shielded_sac("takeover", seed=2), 300),
     "sailr_point": (lambda: SAILR("MlpPolicy", POINT, seed=0, **TINY_SAILR), 300),
     "pdo_point": (lambda: PDO("MlpPolicy", POINT, seed=0, **TINY_PDO), 300),
@@ -64,9 +64,9 @@ CONFIGS: dict[str, tuple[Callable[[], Any], int]] = {
 }
 
 
-def shielded_sac(mode: str, seed: int) -> SAC:
+def shielded_sac(mode: str, seed: int, penalty: float = 0.0) -> SAC:
     """SAC behind ``ShieldWrapper`` on the Point task, in one of the wrapper's intervention modes."""
-    env = ShieldWrapper(gym.make(POINT), "auto", on_intervention=mode)
+    env = ShieldWrapper(gym.make(POINT), "auto", on_intervention=mode, penalty=penalty)
     return SAC("MlpPolicy", env, seed=seed, learning_starts=50, batch_size=16, policy_kwargs=dict(net_arch=[16]))
 
 

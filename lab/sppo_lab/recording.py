@@ -18,7 +18,7 @@ class RecordingRule(ShieldingRule):
     """
 
     def __init__(self, rule: ShieldingRule) -> None:
-        super().__init__(eta=rule.eta, penalty=rule.penalty)
+        super().__init__(eta=rule.eta)
         self.rule = rule
         self.gamma = getattr(rule, "gamma", 0.99)
         self.observations: list[np.ndarray] = []

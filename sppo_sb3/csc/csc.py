@@ -21,8 +21,8 @@ sampler chooses the executed actions, and every transition also goes to the cost
 Deviations from Bharadhwaj et al.: the PPO clipped step in place of their natural-gradient step (above); CQL's
 push-up term uses policy actions only, not uniform ones (see :meth:`CSC.train_cost_critic`); the dual step is the
 projected gradient step shared with PDO. ``hyperparams/csc.yml`` holds the settings of SAILR's authors' CSC runs on
-these tasks. On the Point Robot no configuration tried learned to keep an episode safe within 100k env steps:
-``docs/results.md`` has the runs and the measured reason.
+these tasks. On the Point Robot no configuration tried learned to keep an episode safe within 100k env steps (CSC's
+documentation page says why).
 """
 
 from __future__ import annotations

@@ -40,9 +40,13 @@ from sppo_sb3.common.keys import INTERVENED_KEY
 from sppo_sb3.common.on_policy import SafeOnPolicyMixin
 from sppo_sb3.sailr.policies import MlpPolicy
 from sppo_sb3.shield.base import ShieldingRule
+from sppo_sb3.shield.intervention import OnIntervention, check_on_intervention, check_penalty
 from sppo_sb3.shield.persistence import ShieldedLoadMixin
 from sppo_sb3.shield.registry import resolve_shielding_rule
-from sppo_sb3.shield.wrapper import OnIntervention, ShieldWrapper
+from sppo_sb3.shield.wrapper import ShieldWrapper
+
+#: the values of ``on_intervention`` SAILR implements (:mod:`~sppo_sb3.shield.intervention`): its authors' takeover
+SAILR_ON_INTERVENTION: tuple[OnIntervention, ...] = ("takeover",)
 
 SelfSAILR = TypeVar("SelfSAILR", bound="SAILR")
 
@@ -102,8 +106,12 @@ class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
         ``"auto"`` without a registered rule is an error. The rule in use is ``model.shield_rule``; it is saved with
         the model, and ``SAILR.load`` raises where it cannot be rebuilt: pass it with
         ``custom_objects={"shield_rule": rule}``, or ``custom_objects={"shield": None}`` to load unshielded.
-    :param penalty: the fixed weight ``κ >= 0`` of the intervention cost's advantage (the authors use 2 on Point and
-        30 on Half-Cheetah; 0 learns from the reward alone, and the absorbing transition then only ends the return).
+    :param on_intervention: what the learner is told of an intervention, in the package's one vocabulary
+        (:mod:`~sppo_sb3.shield.intervention`): ``"takeover"``, the one SAILR implements (the proposal is the absorbing
+        step, the backup runs the rest of the episode, masked out of learning).
+    :param penalty: what an intervention costs the learner, ``>= 0``: the fixed weight ``κ`` of the intervention
+        cost's advantage (the authors use 2 on Point and 30 on Half-Cheetah; 0 learns from the reward alone, and the
+        absorbing transition then only ends the return).
     :param learning_rate: learning rate.
     :param n_steps: steps per env per rollout.
     :param batch_size: minibatch size.
@@ -139,6 +147,7 @@ class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
         policy: str | type[CostActorCriticPolicy],
         env: GymEnv | str,
         shield: ShieldingRule | str | None = "auto",
+        on_intervention: OnIntervention = "takeover",
         penalty: float = 1.0,
         learning_rate: float | Schedule = 3e-4,
         n_steps: int = 4000,
@@ -165,12 +174,9 @@ class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
         device: th.device | str = "auto",
         _init_setup_model: bool = True,
     ) -> None:
-        if penalty < 0:
-            raise ValueError(
-                f"SAILR's penalty is the weight κ >= 0 of the intervention cost (the authors use 2 on Point, 30 on "
-                f"Half-Cheetah), got {penalty}. It used to be a reward R̃ <= 0 of the absorbing step; that reward is now 0, "
-                "as in SAILR's code: pass a positive weight, e.g. penalty=2.0."
-            )
+        check_on_intervention(on_intervention, SAILR_ON_INTERVENTION, "SAILR")
+        check_penalty(penalty, "SAILR", "It weights the intervention cost κ (the authors use 2 on Point, 30 on Half-Cheetah).")
+        self.on_intervention = on_intervention
         self.shield = shield
         self.shield_rule: ShieldingRule | None = shield if isinstance(shield, ShieldingRule) else None
         self.penalty = penalty
@@ -216,7 +222,7 @@ class SAILR(ShieldedLoadMixin, SafeOnPolicyMixin, PPO):
         if self.shield_rule is None:
             self.shield_rule = resolve_shielding_rule(self.shield, self.env, required=True)
         if self.shield_rule is not None:
-            shield_vec_env(self.env, self.shield_rule)
+            shield_vec_env(self.env, self.shield_rule, self.on_intervention)
         elif all(self.env.env_is_wrapped(ShieldWrapper)):
             self.shield_rule = self.env.get_attr("rule", indices=[0])[0]
         else:

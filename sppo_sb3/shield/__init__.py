@@ -1,7 +1,9 @@
 """Advantage-based shielding (Section III-B).
 
-The contract lives at this package's top: :class:`ShieldingRule` (``base``), :class:`ShieldWrapper` (``wrapper``) and
-the registry behind ``shield="auto"`` (``registry``). Beneath it, by role:
+The contract lives at this package's top: :class:`ShieldingRule` (``base``), :class:`ShieldWrapper` (``wrapper``), the
+registry behind ``shield="auto"`` (``registry``), what the learner is told of an intervention (``intervention``, the
+``on_intervention`` and ``penalty`` that SPPO, SAILR and the wrapper share), saving and loading a shielded model's rule
+(``persistence``) and deployment with and without the shield (``evaluation``). Beneath it, by role:
 
 - ``tasks``: the built-in tasks' rules (Point Robot, Half-Cheetah height, velocity);
 - ``mujoco``: the MuJoCo engine, a certified rule for any constraint on a MuJoCo env's state;
@@ -10,6 +12,7 @@ the registry behind ``shield="auto"`` (``registry``). Beneath it, by role:
 """
 
 from sppo_sb3.shield.base import ShieldDecision, ShieldFailure, ShieldingRule, in_shielding_set
+from sppo_sb3.shield.intervention import ON_INTERVENTION, OnIntervention
 from sppo_sb3.shield.learned.base import RefinableRule
 from sppo_sb3.shield.learned.critic import LearnedCostCriticRule
 from sppo_sb3.shield.learned.dynamics import LearnedDynamicsRule
@@ -30,6 +33,7 @@ from sppo_sb3.shield.tasks.velocity import VelocityConstraint
 from sppo_sb3.shield.wrapper import ShieldWrapper
 
 __all__ = [
+    "ON_INTERVENTION",
     "RULE_ENV_PARAMETERS",
     "SHIELDING_RULES",
     "ConstraintCosts",
@@ -40,6 +44,7 @@ __all__ = [
     "LearnedDynamicsRule",
     "MujocoLayout",
     "MujocoShieldingRule",
+    "OnIntervention",
     "PointCircleShieldingRule",
     "RefinableRule",
     "ShieldDecision",

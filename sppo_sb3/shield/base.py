@@ -115,20 +115,15 @@ class ShieldingRule(ABC):
     that scale directly.
 
     :param eta: advantage threshold ``η``; ``(s, a)`` is shielded iff ``Ā(s, a) > η`` (on the rule's own scale).
-    :param penalty: reward ``R̃ <= 0`` of the absorbing transition that replaces a shielded step in the
-        absorbing MDP (eq. 7).
     """
 
     value_scale: ClassVar[Literal["shaped", "definition2"]] = "shaped"
     """Scale of :meth:`cost_value`: ``"shaped"`` (``[0, γ / (1 - γ)]``, absorbing tail) or ``"definition2"`` (``[0, γ]``)."""
 
-    def __init__(self, eta: float = 0.0, penalty: float = -1.0) -> None:
+    def __init__(self, eta: float = 0.0) -> None:
         if eta < 0:
             raise ValueError(f"The advantage threshold eta must be >= 0 (Proposition 1), got {eta}.")
-        if penalty > 0:
-            raise ValueError(f"The absorbing penalty R̃ must be <= 0 (eq. 7), got {penalty}.")
         self.eta = eta
-        self.penalty = penalty
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)

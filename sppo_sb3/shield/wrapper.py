@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal, SupportsFloat
+from typing import Any, SupportsFloat
 
 import gymnasium as gym
 import numpy as np
@@ -16,27 +16,31 @@ from sppo_sb3.common.keys import (
     PROPOSED_ACTION_KEY,
 )
 from sppo_sb3.shield.base import ShieldDecision, ShieldingRule
+from sppo_sb3.shield.intervention import OnIntervention, check_on_intervention, check_penalty
 from sppo_sb3.shield.registry import resolve_shielding_rule
 
-OnIntervention = Literal["execute", "absorb", "takeover"]
+#: the values of ``on_intervention`` a wrapper can implement through the gym API (:mod:`~sppo_sb3.shield.intervention`)
+WRAPPER_ON_INTERVENTION: tuple[OnIntervention, ...] = ("continue", "terminate", "takeover")
 
 
 class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray]):
     """Pass every action through the rule's shield (eq. 12) before the env executes it.
 
-    The env always executes the safe action. What the learner sees on an intervention depends on ``on_intervention``:
+    The env always executes the safe action. What the learner sees on an intervention is ``on_intervention``, in the
+    package's one vocabulary (:mod:`~sppo_sb3.shield.intervention`):
 
-    - ``"execute"`` (default): the step of the executed backup action, as if the learner's action had produced it.
-      The learner then learns in the *shielded* env, where a proposal means "this action, passed through the
-      shield"; an off-policy learner's replay buffer stores the proposal with the backup's transition, and nothing
-      tells it that the proposal was rejected.
-    - ``"absorb"``: SAILR's absorbing MDP (eq. 7): the step ends the episode (``terminated=True``) with reward
-      ``R̃`` (the rule's ``penalty``), so the learner stores ``(s, proposal, R̃, terminal)`` — the proposal is
-      what leads to ``s†`` — and the episode restarts at the next ``reset``. The env's reward of the executed step
-      is in ``info["env_reward"]``.
-    - ``"takeover"``: as ``"execute"``, and the backup policy ``ζ`` then keeps control until the episode ends: every
-      later step executes ``ζ(s)`` whatever is proposed (and is reported as an intervention). This is how SAILR's
-      code (Wagener et al. 2021) runs an episode after its first intervention; the learner masks those steps out.
+    - ``"continue"`` (default): the step of the executed backup action, as if the learner's proposal had produced it,
+      its reward less ``penalty``. With the default ``penalty=0`` the learner learns in the *shielded* env, where a
+      proposal means "this action, passed through the shield", and nothing tells it that the proposal was rejected.
+    - ``"terminate"``: eq. 7's absorbing MDP: the step ends the episode (``terminated=True``) with reward
+      ``R̃ = -penalty``, so the learner stores ``(s, proposal, R̃, terminal)`` (the proposal is what leads to ``s†``)
+      and the episode restarts at the next ``reset``. The env's reward of the executed step is in
+      ``info["env_reward"]``.
+    - ``"takeover"``: the step as the env executed it, and the backup policy ``ζ`` then keeps control until the
+      episode ends: every later step executes ``ζ(s)`` whatever is proposed (and is reported as an intervention).
+      This is how SAILR's code (Wagener et al. 2021) runs an episode after its first intervention; the learner
+      relabels the first intervention and masks the later steps itself (:class:`~sppo_sb3.sailr.SAILR` does), so this
+      mode takes no penalty.
 
     The step's info carries ``info["shield_intervened"]`` (whether the backup replaced the action),
     ``info["proposed_action"]`` (what the agent asked for, clipped to the action space), ``info["executed_action"]``
@@ -49,30 +53,34 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         the env's parameters), an env id or a variant such as ``"SafePointCircle-v0:paper"``. A name lets a YAML file
         shield any algorithm, through rl-zoo3's ``env_wrapper``:
         ``env_wrapper: [{sppo_sb3.shield.ShieldWrapper: {rule: auto}}]``.
-    :param on_intervention: ``"execute"``, ``"absorb"`` or ``"takeover"`` (see above).
-    :param penalty: ``R̃ <= 0`` of the absorbing step; ``None``: the rule's ``penalty``.
+    :param on_intervention: ``"continue"``, ``"terminate"`` or ``"takeover"`` (see above).
+    :param penalty: what an intervention costs the learner, ``>= 0``: subtracted from the step's reward under
+        ``"continue"``, the absorbing step's reward ``R̃ = -penalty`` under ``"terminate"``.
     """
 
     def __init__(
         self,
         env: gym.Env,
         rule: ShieldingRule | str,
-        on_intervention: OnIntervention = "execute",
-        penalty: float | None = None,
+        on_intervention: OnIntervention = "continue",
+        penalty: float = 0.0,
     ) -> None:
         super().__init__(env)
         if not isinstance(env.action_space, gym.spaces.Box):
             raise TypeError(f"ShieldWrapper needs a Box action space, got {env.action_space}.")
-        if on_intervention not in ("execute", "absorb", "takeover"):
-            raise ValueError(f"on_intervention must be 'execute', 'absorb' or 'takeover', got {on_intervention!r}.")
-        if penalty is not None and penalty > 0:
-            raise ValueError(f"The absorbing penalty R̃ must be <= 0 (eq. 7), got {penalty}.")
+        check_on_intervention(on_intervention, WRAPPER_ON_INTERVENTION, "ShieldWrapper")
+        check_penalty(penalty, "ShieldWrapper", "The absorbing step's reward is R̃ = -penalty: for R̃ = -1 pass penalty=1.0.")
+        if on_intervention == "takeover" and penalty != 0.0:
+            raise ValueError(
+                "ShieldWrapper(on_intervention='takeover') reports the executed steps as they are and leaves the relabel to "
+                "the learner (SAILR weights its intervention cost by its own penalty): pass penalty=0.0."
+            )
         resolved = resolve_shielding_rule(rule, env, required=True)
         if resolved is None:
             raise TypeError("ShieldWrapper needs a shielding rule: a ShieldingRule or a registered rule's name, not None.")
         self.rule = resolved
         self.on_intervention = on_intervention
-        self.penalty = resolved.penalty if penalty is None else penalty
+        self.penalty = penalty
         self._box: gym.spaces.Box = env.action_space
         self._obs: np.ndarray | None = None
         self._checked = False
@@ -100,11 +108,14 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         info[PROPOSED_ACTION_KEY] = proposed
         info[EXECUTED_ACTION_KEY] = safe
         info[ADVANTAGE_KEY] = float(decision.advantage[0])
-        info[ABSORBED_KEY] = intervened and self.on_intervention == "absorb"
+        info[ABSORBED_KEY] = intervened and self.on_intervention == "terminate"
         self._obs = np.asarray(obs)
         if info[ABSORBED_KEY]:
             info[ENV_REWARD_KEY] = reward
-            return obs, self.penalty, True, False, info
+            return obs, -self.penalty, True, False, info
+        if intervened and self.on_intervention == "continue" and self.penalty:
+            info[ENV_REWARD_KEY] = reward
+            reward = float(reward) - self.penalty
         return obs, reward, terminated, truncated, info
 
     def _decide(self, proposed: np.ndarray) -> ShieldDecision:

@@ -8,13 +8,14 @@ episode. ``B̃`` is therefore a view of ``B`` plus one action column and two fla
 
 That relabel assumes, as the paper's tasks do, that a violation ends the episode. Where it does not (a CMDP such as
 the velocity tasks, whose cost limit counts every violating step), an intervention need not be a death: ``"continue"``
-keeps the proposal and its penalty ``R̃`` but bootstraps from the real next state, and ``"none"`` learns from ``B``
-as it is (the learner never sees a proposal the shield rejected).
+keeps the proposal, penalised, but bootstraps from the real next state, and ``"none"`` learns from ``B`` as it is (the
+learner never sees a proposal the shield rejected). The values are the package's one vocabulary,
+:mod:`sppo_sb3.shield.intervention`.
 """
 
 from __future__ import annotations
 
-from typing import Any, Literal, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch as th
@@ -23,10 +24,11 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY, PROPOSED_ACTION_KEY, SHAPED_COST_KEY
+from sppo_sb3.shield.intervention import OnIntervention, check_on_intervention, check_penalty
 from sppo_sb3.shield.learned.base import CostTransitions
 
-AbsorbingMode = Literal["terminate", "restart", "continue", "none"]
-ABSORBING_MODES: tuple[AbsorbingMode, ...] = ("terminate", "restart", "continue", "none")
+#: the values of ``on_intervention`` SPPO's relabel implements (:mod:`~sppo_sb3.shield.intervention`)
+SPPO_ON_INTERVENTION: tuple[OnIntervention, ...] = ("terminate", "restart", "continue", "none")
 
 
 class SequenceSamples(NamedTuple):
@@ -59,16 +61,17 @@ class ShieldedReplayBuffer(ReplayBuffer):
     :meth:`sample_sequences` draws sequences of ``B̃`` for TOPO; :meth:`sample_cost_transitions` draws the real
     transitions a learned shielding rule is fitted on.
 
-    :param absorbing: how ``B̃`` relabels an intervention at step ``T``:
+    :param on_intervention: how ``B̃`` relabels an intervention at step ``T`` (:mod:`~sppo_sb3.shield.intervention`):
 
         - ``"terminate"``: the paper's ``M̃``: ``(s_T, a_T, R̃)`` is an absorbing terminal, and nothing more of the
           episode is learned;
         - ``"restart"``: every intervention is an absorbing terminal, and ``B̃`` restarts at the next real state;
-        - ``"continue"``: ``(s_T, a_T, r_T + R̃, s_(T+1))`` without a terminal: the proposal is penalised by ``R̃``
-          and its value bootstrapped from the real next state, the one the backup led to (tasks where a violation does
-          not end the episode). TOLD's latent roll stops there, since ``s_(T+1)`` did not follow ``a_T``;
+        - ``"continue"``: ``(s_T, a_T, r_T - penalty, s_(T+1))`` without a terminal: the proposal is penalised and its
+          value bootstrapped from the real next state, the one the backup led to (tasks where a violation does not end
+          the episode). TOLD's latent roll stops there, since ``s_(T+1)`` did not follow ``a_T``;
         - ``"none"``: no relabel, ``B̃ = B``: the executed action, its reward and next state.
-    :param penalty: ``R̃``, the reward of the absorbing transition (eq. 7), or the penalty added under ``"continue"``.
+    :param penalty: what an intervention costs the learner, ``>= 0``: the absorbing transition's reward is
+        ``R̃ = -penalty`` (eq. 7); under ``"continue"`` it is subtracted from the step's reward.
     """
 
     def __init__(
@@ -80,16 +83,16 @@ class ShieldedReplayBuffer(ReplayBuffer):
         n_envs: int = 1,
         optimize_memory_usage: bool = False,
         handle_timeout_termination: bool = True,
-        absorbing: AbsorbingMode = "restart",
-        penalty: float = -1.0,
+        on_intervention: OnIntervention = "restart",
+        penalty: float = 1.0,
     ) -> None:
         if optimize_memory_usage:
             raise ValueError("ShieldedReplayBuffer keeps next observations explicitly: use optimize_memory_usage=False.")
-        if absorbing not in ABSORBING_MODES:
-            raise ValueError(f"absorbing must be one of {', '.join(map(repr, ABSORBING_MODES))}, got {absorbing!r}.")
+        check_on_intervention(on_intervention, SPPO_ON_INTERVENTION, "SPPO's replay buffer")
+        check_penalty(penalty, "SPPO's replay buffer", "The absorbing step's reward is R̃ = -penalty.")
         super().__init__(buffer_size, observation_space, action_space, device, n_envs, False, handle_timeout_termination)
         assert isinstance(action_space, spaces.Box)
-        self.absorbing, self.penalty = absorbing, penalty
+        self.on_intervention, self.penalty = on_intervention, penalty
         self.proposed_actions = np.zeros_like(self.actions)
         self.costs = np.zeros((self.buffer_size, self.n_envs), dtype=np.float32)
         self.shaped_costs = np.full((self.buffer_size, self.n_envs), np.nan, dtype=np.float32)
@@ -117,7 +120,7 @@ class ShieldedReplayBuffer(ReplayBuffer):
         self.intervened[pos] = intervened
         self.proposed_actions[pos] = proposed.reshape(self.n_envs, self.action_dim)
         self.relabel_valid[pos] = ~self._absorbed  # the ã rule: M̃ data until (and including) T
-        if self.absorbing == "terminate":
+        if self.on_intervention == "terminate":
             self._absorbed |= intervened
         self._absorbed[np.asarray(done, dtype=bool)] = False
         super().add(obs, next_obs, action, reward, done, infos)
@@ -172,17 +175,17 @@ class ShieldedReplayBuffer(ReplayBuffer):
         starts, envs = self._sample_starts(batch_size)
         offsets = np.arange(length)[:, None]
         idx = (starts[None] + offsets) % self.buffer_size  # (L, B)
-        relabelled = self.intervened[idx, envs] & (self.absorbing != "none")  # steps whose action is the proposal
+        relabelled = self.intervened[idx, envs] & (self.on_intervention != "none")  # steps whose action is the proposal
         ends = self.dones[idx, envs].astype(bool) | relabelled
         crossed = np.cumsum(np.concatenate([np.zeros((1, batch_size), bool), ends[:-1]]), axis=0) > 0
         mask = (offsets < self._available(starts)[None]) & ~crossed & self.relabel_valid[idx, envs]
         actions = np.where(relabelled[..., None], self.proposed_actions[idx, envs], self.actions[idx, envs])
         real_terminals = (self.dones[idx, envs] * (1 - self.timeouts[idx, envs])).astype(bool)
-        if self.absorbing == "continue":
-            rewards = np.where(relabelled, self.rewards[idx, envs] + self.penalty, self.rewards[idx, envs])
+        if self.on_intervention == "continue":
+            rewards = np.where(relabelled, self.rewards[idx, envs] - self.penalty, self.rewards[idx, envs])
             terminals = real_terminals
         else:
-            rewards = np.where(relabelled, self.penalty, self.rewards[idx, envs])
+            rewards = np.where(relabelled, -self.penalty, self.rewards[idx, envs])
             terminals = real_terminals | relabelled
         data = (
             self._normalize_obs(self.observations[starts, envs], env),

@@ -4,7 +4,7 @@
 fields, both of which break a ``torch.compile`` graph. These functions do the same arithmetic on the optimiser's own
 state (``exp_avg``, ``exp_avg_sq``, ``step``), so ``state_dict``/``load_state_dict`` and SB3's learning-rate updates
 keep working, and the eager path runs the very same code. PyTorch's own Adam with ``capturable=True`` also traces into
-the compiled update, but trains slower (``scripts/bench_training.py --torch-adam``; see docs/results.md).
+the compiled update, but trains slower (``scripts/bench_training.py --torch-adam`` measures it).
 """
 
 from __future__ import annotations

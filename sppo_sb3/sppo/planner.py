@@ -46,7 +46,6 @@ class MPPIConfig:
     :param min_std_decay: steps of the linear decay of ``ε``.
     :param max_std: upper clamp of ``σ`` (and its initial value).
     :param policy_std: std of the clipped noise on ``π``'s actions inside the planner.
-    :param gamma: discount of eq. 10.
     :param num_candidates: actions :func:`mppi` proposes per env, best first: ``μ_J``'s (the plan), then the first
         actions of the ``num_candidates - 1`` best trajectories of the first iteration, whose samples spread widest.
         A shield executes the first it accepts (SPPO's collection and ``predict``), so that where it rejects the plan
@@ -54,9 +53,9 @@ class MPPIConfig:
         paper's eq. 12.
     :param max_rows: trajectories scored per network call: the ``E·N`` samples of many envs are cut into equal
         blocks of at most this many rows, so each block's activations stay in cache (64 envs × 512 samples of 512-wide
-        activations are 64 MB; the unblocked batch is slower per action, see ``docs/results.md``).
+        activations are 64 MB; the unblocked batch is slower per action: ``scripts/bench_planner.py``).
     :param dtype: ``"float32"`` or ``"bfloat16"``: precision of the planner's hidden layers. bf16 runs on AMX
-        (recent Xeon CPUs) and tensor cores faster (``docs/results.md``); reward and value heads stay fp32, so
+        (recent Xeon CPUs) and tensor cores faster (``scripts/bench_planner.py``); reward and value heads stay fp32, so
         returns and elite weights keep fp32 precision.
     """
 
@@ -73,7 +72,6 @@ class MPPIConfig:
     min_std_decay: int = 25_000
     max_std: float = 2.0
     policy_std: float = 0.05
-    gamma: float = 0.99
     num_candidates: int = 1
     max_rows: int = 2048
     dtype: str = "float32"
@@ -199,11 +197,11 @@ def step_return(
 
 
 def blocked_returns(
-    model: TOLD, z: th.Tensor, actions: th.Tensor, terminal_noise: th.Tensor, cfg: MPPIConfig, block_rows: int
+    model: TOLD, z: th.Tensor, actions: th.Tensor, terminal_noise: th.Tensor, cfg: MPPIConfig, gamma: float, block_rows: int
 ) -> th.Tensor:
     """Eq. 10 for ``(B, latent)`` starts and ``(H, B, A)`` actions, in row blocks whose activations stay in cache."""
     blocks = zip(z.split(block_rows), actions.split(block_rows, dim=1), terminal_noise.split(block_rows))
-    return th.cat([trajectory_return(model, zb, ab, cfg.gamma, cfg.policy_std, nb) for zb, ab, nb in blocks])
+    return th.cat([trajectory_return(model, zb, ab, gamma, cfg.policy_std, nb) for zb, ab, nb in blocks])
 
 
 def policy_rollout(
@@ -239,7 +237,7 @@ def refit_gaussian(elites: th.Tensor, elite_returns: th.Tensor, temperature: flo
 
 
 def mppi(
-    model: TOLD, obs: th.Tensor, warm_mean: th.Tensor, noise: PlanNoise, min_std: th.Tensor, cfg: MPPIConfig
+    model: TOLD, obs: th.Tensor, warm_mean: th.Tensor, noise: PlanNoise, min_std: th.Tensor, cfg: MPPIConfig, gamma: float
 ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
     """Plan one action per env (Alg. 2 lines 2–15).
 
@@ -248,6 +246,8 @@ def mppi(
     :param warm_mean: ``(E, H, A)`` the initial mean ``μ_0`` (the warm start); ``H`` is this plan's horizon.
     :param noise: the plan's standard normal draws.
     :param min_std: ``ε`` of eq. 11 (0-d tensor).
+    :param cfg: the planner's settings.
+    :param gamma: the discount of eq. 10 (SPPO's ``gamma``).
     :return: actions ``(E, A)`` in [-1, 1] — ``μ_J``'s first step plus ``σ_J`` times ``noise.action`` —, ``μ_J``
         and the alternatives ``(E, num_candidates - 1, A)``: the first actions of the first iteration's best
         trajectories, best first.
@@ -255,7 +255,7 @@ def mppi(
     n_envs, horizon, adim = warm_mean.shape
     n, p = cfg.num_samples, cfg.num_policy_samples
     z = model.encode(obs.to(next(model.parameters()).dtype))
-    pi_actions, pi_returns = policy_rollout(model, z.repeat_interleave(p, 0), horizon, cfg.gamma, cfg.policy_std, noise.policy)
+    pi_actions, pi_returns = policy_rollout(model, z.repeat_interleave(p, 0), horizon, gamma, cfg.policy_std, noise.policy)
     pi_actions = pi_actions.view(horizon, n_envs, p, adim).permute(1, 2, 0, 3).float()
     pi_returns = pi_returns.view(n_envs, p)
     z_samples = z.repeat_interleave(n, 0)
@@ -264,7 +264,7 @@ def mppi(
     for j in range(cfg.iterations):
         samples = (mean.unsqueeze(1) + std.unsqueeze(1) * noise.samples[j]).clamp(-1.0, 1.0)
         flat = samples.permute(2, 0, 1, 3).reshape(horizon, n_envs * n, adim).to(z.dtype)
-        returns = blocked_returns(model, z_samples, flat, noise.terminal[j], cfg, block_rows).view(n_envs, n)
+        returns = blocked_returns(model, z_samples, flat, noise.terminal[j], cfg, gamma, block_rows).view(n_envs, n)
         all_actions, all_returns = th.cat([samples, pi_actions], 1), th.cat([returns, pi_returns], 1)
         elite_returns, elite_idx = all_returns.topk(cfg.num_elites, dim=1)
         elites = all_actions.gather(1, elite_idx[:, :, None, None].expand(-1, -1, horizon, adim))
@@ -304,12 +304,15 @@ class MPPIPlanner:
 
     :param config: planner settings.
     :param action_dim: action size.
+    :param gamma: the discount of eq. 10 (SPPO's ``gamma``, the one its update's TD target uses).
     :param device: torch device of the model.
     :param compile: compile :func:`mppi` (one graph per horizon and number of envs).
     """
 
-    def __init__(self, config: MPPIConfig, action_dim: int, device: th.device | str = "cpu", compile: bool = False) -> None:
-        self.config, self.action_dim = config, action_dim
+    def __init__(
+        self, config: MPPIConfig, action_dim: int, gamma: float, device: th.device | str = "cpu", compile: bool = False
+    ) -> None:
+        self.config, self.action_dim, self.gamma = config, action_dim, gamma
         self.device = th.device(device)
         self.dtype = getattr(th, config.dtype)
         self._shadow: TOLD | None = None
@@ -373,7 +376,9 @@ class MPPIPlanner:
         noise = PlanNoise(*(x.to(self.device) for x in noise))
         min_std = th.tensor(cfg.min_std_at(step), device=self.device)
         warm = warm_start(prev_mean.to(self.device), horizon)
-        action, mean, alternatives = self.function(self._planning_model(model), obs.to(self.device), warm, noise, min_std, cfg)
+        action, mean, alternatives = self.function(
+            self._planning_model(model), obs.to(self.device), warm, noise, min_std, cfg, self.gamma
+        )
         new_mean = th.zeros_like(prev_mean, device=self.device)
         new_mean[:, :horizon] = mean
         return Plan(action.clone(), new_mean, th.cat([action.unsqueeze(1), alternatives.float()], dim=1))

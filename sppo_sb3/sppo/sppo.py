@@ -12,6 +12,7 @@ from typing import Any, ClassVar, Literal, TypeVar
 import numpy as np
 import torch as th
 from gymnasium import spaces
+from stable_baselines3.common.base_class import maybe_make_env
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
@@ -23,17 +24,18 @@ from stable_baselines3.common.vec_env import VecEnv
 from sppo_sb3.common.keys import INTERVENED_KEY, N_UPDATES_LOG_KEY, PROPOSED_ACTION_KEY
 from sppo_sb3.common.safety import SafetyTrackingMixin
 from sppo_sb3.shield.base import ShieldingRule
+from sppo_sb3.shield.intervention import OnIntervention, check_on_intervention, check_penalty
 from sppo_sb3.shield.learned.base import RefinableRule
 from sppo_sb3.shield.learned.latent import LatentModelRule
 from sppo_sb3.shield.persistence import ShieldedLoadMixin
 from sppo_sb3.shield.registry import resolve_shielding_rule
-from sppo_sb3.sppo.buffers import AbsorbingMode, ShieldedReplayBuffer
+from sppo_sb3.sppo.buffers import SPPO_ON_INTERVENTION, ShieldedReplayBuffer
 from sppo_sb3.sppo.compile import CompiledFunction, CompileMode, check_compile_mode, should_compile
 from sppo_sb3.sppo.optim import init_optimizer_state, supports_tensor_step
 from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
 from sppo_sb3.sppo.policies import TOLDPolicy
 from sppo_sb3.sppo.sizes import SizesName, named_sizes
-from sppo_sb3.sppo.time_scale import PAPER_GAMMA, episode_discount, episode_length_of, task_terminates
+from sppo_sb3.sppo.time_scale import resolve_gamma, task_terminates
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, draw_target_heads, topo_update
 from sppo_sb3.sppo.world_model import TOLDName, check_told_name
 
@@ -75,8 +77,9 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
     :param tau: EMA coefficient of the target network (Alg. 3 line 13).
     :param gamma: discount of eqs. 10 and 16: a number (the paper's and TD-MPC's 0.99), or ``"auto"``: from the task's
         episode length, TD-MPC2's rule (:func:`~sppo_sb3.sppo.time_scale.episode_discount`: 0.99 for 500 steps, 0.995
-        for 1000), so that the discount spans the same time on robots with short steps; the resolved value is
-        :attr:`gamma`.
+        for 1000), so that the discount spans the same time on robots with short steps. Resolved once, at
+        construction, into :attr:`gamma`, which the planner (eq. 10) and the TD target (eq. 16) both read; it is not a
+        field of ``planner_kwargs`` or ``topo_kwargs``.
     :param train_freq: update the model every ``train_freq`` steps.
     :param gradient_steps: TOPO updates per rollout.
     :param horizon: length ``H`` of the sequences TOPO trains on, and of the plans (``None``: the ``sizes``').
@@ -86,15 +89,16 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         rule) or ``None`` (unshielded, on purpose). The rule in use is :attr:`shield_rule` (``None``:
         unshielded); it is saved with the model, and ``SPPO.load`` raises where it cannot be rebuilt: pass it with
         ``custom_objects={"shield_rule": rule}``, or ``custom_objects={"shield": None}`` to load unshielded.
-    :param absorbing: what ``B̃`` records at an intervention (:class:`ShieldedReplayBuffer`). ``"terminate"`` is the
-        paper's ``M̃`` (an absorbing terminal with reward ``R̃``, nothing more of the episode); ``"restart"`` (default)
-        makes every intervention an absorbing terminal and restarts ``B̃`` at the next real state; "terminate" keeps
-        only one shielded example per episode, so the planner learns slowly which proposals the shield rejects (the
-        two are compared in ``docs/results.md``). For tasks where a violation does not end the episode (CMDPs with a
-        cost limit, e.g. the velocity tasks): ``"continue"`` keeps the proposal with the penalty ``R̃`` added to the
-        step's reward and bootstraps from the real next state, and ``"none"`` learns from the executed steps alone.
-    :param absorbing_penalty: ``R̃`` of eq. 7 (under ``"continue"``, the penalty of a rejected proposal); defaults to the
-        rule's ``penalty``.
+    :param on_intervention: what ``B̃`` records at an intervention, in the package's one vocabulary
+        (:mod:`~sppo_sb3.shield.intervention`; :class:`ShieldedReplayBuffer`). ``"terminate"`` is the paper's ``M̃``
+        (an absorbing terminal with reward ``R̃ = -penalty``, nothing more of the episode); ``"restart"`` (default)
+        makes every intervention an absorbing terminal and restarts ``B̃`` at the next real state, since
+        ``"terminate"`` keeps only one shielded example per episode, so the planner learns slowly which proposals the
+        shield rejects. For tasks where a violation does not end the episode (CMDPs with a cost limit, e.g. the
+        velocity tasks): ``"continue"`` keeps the proposal with the step's reward less ``penalty`` and bootstraps from
+        the real next state, and ``"none"`` learns from the executed steps alone.
+    :param penalty: what an intervention costs the learner, ``>= 0``: eq. 7's ``R̃ = -penalty`` (under
+        ``"continue"``, subtracted from the step's reward).
     :param termination_model: give TOLD a termination head, trained on ``B̃``'s terminal flags (absorbing
         interventions and real terminations, not time-limit truncations), and plan with it: eq. 10 adds no reward and
         no value after a predicted absorbing step. ``"auto"`` (default): on where the task ends episodes on its own
@@ -129,7 +133,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
     :param plan_at_predict: ``predict`` plans with MPPI (``True``) or acts with the policy prior alone (fast).
     :param shield_at_predict: ``predict`` passes its actions through the shield.
     :param replay_buffer_kwargs: extra arguments of :class:`ShieldedReplayBuffer` (e.g. ``handle_timeout_termination``;
-        ``absorbing`` and the penalty come from the arguments above).
+        ``on_intervention`` and ``penalty`` come from the arguments above).
     :param optimize_memory_usage: SB3's replay-buffer option; ``B̃`` needs explicit next observations, so only
         ``False`` (SB3's default) is accepted.
     :param compile: compile the planner (all ``J`` iterations of Alg. 2) and the whole TOPO update (Alg. 3) with
@@ -147,8 +151,8 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
     :param device: torch device: ``"cpu"``, ``"cuda"`` or ``"auto"`` (CUDA where available).
     :param _init_setup_model: build the networks now.
 
-    Measured effects of ``absorbing``, of the planner's ``max_rows`` and ``dtype`` and of TOLD's ELU are in
-    ``docs/results.md``; the deviations from the paper in ``docs/modules/sppo.md`` (Comments).
+    The deviations from the paper are listed, with what was measured for each, on SPPO's documentation page
+    (``docs/modules/sppo.md``, "Comments").
     """
 
     policy_aliases: ClassVar[dict[str, type[BasePolicy]]] = {"TOLDPolicy": TOLDPolicy, "MlpPolicy": TOLDPolicy}
@@ -172,8 +176,8 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         horizon: int | None = None,
         target_update_interval: int = 2,
         shield: ShieldingRule | str | None = "auto",
-        absorbing: AbsorbingMode = "restart",
-        absorbing_penalty: float | None = None,
+        on_intervention: OnIntervention = "restart",
+        penalty: float = 1.0,
         termination_model: bool | Literal["auto"] = "auto",
         told: TOLDName = "paper",
         refine_shield: bool | Literal["auto"] = "auto",
@@ -201,6 +205,11 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             raise ValueError(f'termination_model is True, False or "auto" (where the task ends), not {termination_model!r}.')
         if (given := (policy_kwargs or {}).get("told", told)) != told:
             raise ValueError(f"Choose TOLD's variant with SPPO's told argument (told={given!r}), not policy_kwargs.")
+        check_discount_source(planner_kwargs, topo_kwargs)
+        check_on_intervention(on_intervention, SPPO_ON_INTERVENTION, "SPPO")
+        check_penalty(penalty, "SPPO", "Eq. 7's absorbing reward is R̃ = -penalty: for R̃ = -1 pass penalty=1.0.")
+        if gamma == "auto" and env is not None:  # the episode length is the env's: make it as SB3 would, once
+            env = self._wrap_env(maybe_make_env(env, verbose), verbose)
         named = named_sizes(sizes)
         batch_size = named.batch_size if batch_size is None else batch_size
         horizon = named.horizon if horizon is None else horizon
@@ -212,7 +221,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             learning_starts=learning_starts,
             batch_size=batch_size,
             tau=tau,
-            gamma=PAPER_GAMMA if gamma == "auto" else gamma,
+            gamma=resolve_gamma(gamma, env if isinstance(env, VecEnv) else None),
             train_freq=train_freq,
             gradient_steps=gradient_steps,
             replay_buffer_class=ShieldedReplayBuffer,
@@ -230,8 +239,8 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         self.horizon = horizon
         self.target_update_interval = target_update_interval
         self.shield = shield
-        self.absorbing = absorbing
-        self.absorbing_penalty = absorbing_penalty
+        self.on_intervention = on_intervention
+        self.penalty = penalty
         if termination_model == "auto":
             termination_model = self.env is not None and task_terminates(self.env)
         self.termination_model = bool(termination_model)
@@ -245,13 +254,9 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
                 f"refine_backup_fraction is a share of the warm-up steps, in [0, 1]; got {refine_backup_fraction}."
             )
         self.refine_backup_fraction = refine_backup_fraction
-        if gamma == "auto" and self.env is not None:
-            self.gamma = episode_discount(episode_length_of(self.env))
         self.sizes = sizes
-        self.planner_config = MPPIConfig(
-            **{"gamma": self.gamma, "horizon": horizon, **named.planner_kwargs(), **(planner_kwargs or {})}
-        )
-        self.topo_config = TOPOConfig(**{"gamma": self.gamma, **(topo_kwargs or {})})
+        self.planner_config = MPPIConfig(**{"horizon": horizon, **named.planner_kwargs(), **(planner_kwargs or {})})
+        self.topo_config = TOPOConfig(**(topo_kwargs or {}))
         self.plan_at_predict = plan_at_predict
         self.shield_at_predict = shield_at_predict
         check_compile_mode(compile)
@@ -321,7 +326,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             if self.compile is True:
                 raise ValueError("compile=True needs TOLDPolicy's default optimizer (Adam); pass compile=False for others.")
             compile = False
-        self.planner = MPPIPlanner(self.planner_config, self.policy.model.action_dim, self.device, compile=compile)
+        self.planner = MPPIPlanner(self.planner_config, self.policy.model.action_dim, self.gamma, self.device, compile=compile)
         self._topo_update = CompiledFunction(topo_update, compile, self.device, "TOPO update")
         self._plan_mean = self._restore_warm_start()
         self._train_stats = th.zeros(len(TOPO_STATS), device=self.device)
@@ -347,10 +352,11 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         """Allocate ``B``/``B̃`` on the first ``learn``, so that loading a model to deploy it allocates nothing."""
         if self.replay_buffer is not None:
             return
-        penalty = self.absorbing_penalty
-        if penalty is None:
-            penalty = self.shield_rule.penalty if self.shield_rule is not None else -1.0
-        kwargs = {"absorbing": self.absorbing, "penalty": penalty, "optimize_memory_usage": self.optimize_memory_usage}
+        kwargs = {
+            "on_intervention": self.on_intervention,
+            "penalty": self.penalty,
+            "optimize_memory_usage": self.optimize_memory_usage,
+        }
         kwargs.update(self.replay_buffer_kwargs)
         self.replay_buffer = ShieldedReplayBuffer(
             self.buffer_size, self.observation_space, self.action_space, device=self.device, n_envs=self.n_envs, **kwargs
@@ -477,7 +483,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             self._n_updates += 1
             ema = th.tensor(self.tau if self._n_updates % self.target_update_interval == 0 else 0.0, device=self.device)
             heads = draw_target_heads(policy.model, self.device)  # None (nothing drawn) for the paper's TOLD
-            stats = self._topo_update(*models, *optimizers, batch, noise, lr, ema, self.topo_config, heads)
+            stats = self._topo_update(*models, *optimizers, batch, noise, lr, ema, self.topo_config, self.gamma, heads)
             self._train_stats += stats
             self._train_stats_count += 1
         self.logger.record(N_UPDATES_LOG_KEY, self._n_updates, exclude="tensorboard")  # as SB3's off-policy algorithms
@@ -600,6 +606,16 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         """Save as SB3 does, with training's warm start, so that a resumed run plans exactly as the saved one would."""
         self.planner_warm_start = self._plan_mean.cpu().numpy()
         super().save(path, exclude, include)
+
+
+def check_discount_source(planner_kwargs: dict[str, Any] | None, topo_kwargs: dict[str, Any] | None) -> None:
+    """Reject a discount given to the planner or the update alone: SPPO's ``gamma`` is the one both read."""
+    for name, kwargs in (("planner_kwargs", planner_kwargs), ("topo_kwargs", topo_kwargs)):
+        if kwargs and "gamma" in kwargs:
+            raise ValueError(
+                f"SPPO's discount is its gamma argument, which the planner (eq. 10) and the update (eq. 16) both read: "
+                f"remove 'gamma' from {name} and pass SPPO(..., gamma={kwargs['gamma']!r}) (or gamma='auto')."
+            )
 
 
 def check_finite(obs: np.ndarray, rewards: np.ndarray) -> None:

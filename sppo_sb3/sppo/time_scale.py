@@ -14,10 +14,27 @@ on its own (:func:`task_terminates`).
 
 from __future__ import annotations
 
+from typing import Literal
+
 from stable_baselines3.common.vec_env import VecEnv
 
 #: the paper's (and TD-MPC's) discount, used where the episode length is unknown
 PAPER_GAMMA = 0.99
+
+
+def resolve_gamma(gamma: float | Literal["auto"], env: VecEnv | None) -> float:
+    """SPPO's discount, resolved once: the given number, or for ``"auto"`` TD-MPC2's discount for the task's episode
+    length (:func:`episode_discount`; :data:`PAPER_GAMMA` without an env or where the length is unknown).
+
+    :param gamma: a discount in ``(0, 1]`` or ``"auto"``.
+    :param env: the training env (``None``: not known yet, e.g. while a saved model is loaded).
+    :raises ValueError: neither a number nor ``"auto"``.
+    """
+    if gamma == "auto":
+        return episode_discount(episode_length_of(env)) if env is not None else PAPER_GAMMA
+    if isinstance(gamma, str):
+        raise ValueError(f'gamma is a discount in (0, 1] or "auto" (from the episode length), got {gamma!r}.')
+    return gamma
 
 
 def episode_discount(episode_length: int | None, denominator: float = 5.0, low: float = 0.95, high: float = 0.995) -> float:

@@ -29,7 +29,6 @@ class TOPOConfig:
     :param termination_coef: weight of the termination head's loss (binary cross-entropy on ``B̃``'s terminal flags;
         used only when TOLD has the head).
     :param rho: ``λ`` of eq. 13, the per-step decay of the loss weight.
-    :param gamma: discount of the TD target (eq. 16).
     :param grad_clip: max gradient norm.
     :param policy_std: std of the clipped noise on ``π(z')`` in the TD target.
     """
@@ -39,7 +38,6 @@ class TOPOConfig:
     consistency_coef: float = 2.0
     termination_coef: float = 1.0
     rho: float = 0.5
-    gamma: float = 0.99
     grad_clip: float = 10.0
     policy_std: float = 0.05
 
@@ -75,6 +73,7 @@ def td_target(
     terminal: th.Tensor,
     noise: th.Tensor,
     cfg: TOPOConfig,
+    gamma: float,
     heads: th.Tensor | None = None,
 ) -> th.Tensor:
     """``r + γ (1 - done) min_k Q⁻_k(z', π(z'))`` with ``z' = h(s')`` — the target of eq. 16.
@@ -83,13 +82,14 @@ def td_target(
     heads, TD-MPC's target), or the two that :func:`draw_target_heads` drew for this update (``"tdmpc2"``).
 
     :param noise: standard normal draws for the exploration noise on ``π(z')``, shaped like the actions.
+    :param gamma: ``γ`` (SPPO's ``gamma``, the one its planner uses).
     :param heads: indices of the target's Q heads to take the min of (a 1-d integer tensor), or None for all.
     """
     next_z = model.encode(next_obs)
     values = th.stack(target.q(next_z, model.policy(next_z, cfg.policy_std, noise)))
     if heads is not None:
         values = values.index_select(0, heads)
-    return reward + cfg.gamma * (1.0 - terminal) * values.amin(dim=0).squeeze(-1)
+    return reward + gamma * (1.0 - terminal) * values.amin(dim=0).squeeze(-1)
 
 
 def value_loss(qs: Sequence[th.Tensor], target: th.Tensor) -> th.Tensor:
@@ -133,6 +133,7 @@ def model_loss(
     batch: SequenceSamples,
     noise: th.Tensor,
     cfg: TOPOConfig,
+    gamma: float,
     heads: th.Tensor | None = None,
 ) -> tuple[th.Tensor, ...]:
     """``J = Σ_i λ^i (c1 L_r + c2 L_v + c3 L_c + c_T L_T)`` (eqs. 13, 14) over a batch of sequences, scaled by ``1/H``.
@@ -140,6 +141,7 @@ def model_loss(
     ``L_T``, the termination head's cross-entropy, is not in the paper's eq. 14; it is 0 without the head.
 
     :param noise: ``(H, B, A)`` standard normal draws for the TD targets' policy noise.
+    :param gamma: the TD target's discount.
     :param heads: the target heads of the TD target's min (:func:`td_target`; None: all).
     :return: the loss, the rolled latents ``z_0 .. z_(H-1)`` (detached, for the policy loss) and the weighted
         reward, value, consistency and termination terms.
@@ -147,7 +149,7 @@ def model_loss(
     horizon = batch.actions.shape[0]
     with th.no_grad():
         target_z = target.encode(batch.next_observations)
-        target_q = td_target(model, target, batch.next_observations, batch.rewards, batch.terminals, noise, cfg, heads)
+        target_q = td_target(model, target, batch.next_observations, batch.rewards, batch.terminals, noise, cfg, gamma, heads)
     latents = roll_latents(model, batch.observations, batch.actions)
     qs = model.q(latents[:-1], batch.actions)
     predicted_reward = model.predicted_reward(latents[:-1], batch.actions)
@@ -182,6 +184,7 @@ def topo_update(
     lr: th.Tensor,
     ema_weight: th.Tensor,
     cfg: TOPOConfig,
+    gamma: float,
     heads: th.Tensor | None = None,
 ) -> th.Tensor:
     """One TOPO update (Alg. 3 lines 3–13): a model step on ``J``, a policy step on the updated ``Q``, the EMA target.
@@ -192,13 +195,14 @@ def topo_update(
     :param noise: ``(H, B, A)`` standard normal draws for the TD targets' policy noise.
     :param lr: learning rate of both optimisers (0-d tensor).
     :param ema_weight: ``τ`` on the updates that refresh the target network, else 0 (0-d tensor).
+    :param gamma: the TD target's discount (SPPO's ``gamma``).
     :param heads: the target's Q heads whose min is the TD target (:func:`draw_target_heads`: None for the
         ``"paper"`` TOLD, two random indices for ``"tdmpc2"``); an input, so that compiled and eager updates agree.
     :return: the statistics named by :data:`TOPO_STATS`, as one detached tensor (read it when logging, not per step).
     """
     model_params = [p for group in optimizer.param_groups for p in group["params"]]
     pi_params = [p for group in pi_optimizer.param_groups for p in group["params"]]
-    loss, latents, reward, value, consistency, termination = model_loss(model, target, batch, noise, cfg, heads)
+    loss, latents, reward, value, consistency, termination = model_loss(model, target, batch, noise, cfg, gamma, heads)
     grads, grad_norm = clip_by_total_norm(th.autograd.grad(loss, model_params), cfg.grad_clip)
     apply_gradients(optimizer, grads, lr)
     pi_loss = policy_loss(model, latents, batch.mask, cfg)

@@ -23,7 +23,7 @@ class ELU(nn.ELU):
     """ELU (α = 1) whose no-grad forward takes ``max(x, exp(min(x, 0)) - 1)``: four vectorised passes.
 
     The planner evaluates ELU on every hidden layer of every rollout step, and PyTorch's CPU ELU kernel is slower than
-    these four passes on the planner's shapes (measured in ``docs/results.md``). With autograd on it is ``F.elu``.
+    these four passes on the planner's shapes. With autograd on it is ``F.elu``.
     """
 
     def forward(self, x: th.Tensor) -> th.Tensor:

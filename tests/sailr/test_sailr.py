@@ -154,8 +154,10 @@ def test_sailr_n_envs_and_user_rule() -> None:
 def test_sailr_shield_errors() -> None:
     with pytest.raises(ValueError, match="No shielding rule is registered"):
         SAILR("MlpPolicy", "Pendulum-v1", **TINY_SAILR)
-    with pytest.raises(ValueError, match="weight κ >= 0 of the intervention cost"):
+    with pytest.raises(ValueError, match="SAILR's penalty is what an intervention costs the learner, a number >= 0"):
         SAILR("MlpPolicy", "SafePointCircle-v0", penalty=-1.0, **TINY_SAILR)
+    with pytest.raises(ValueError, match=r"SAILR cannot implement on_intervention='continue'.*takes 'takeover'"):
+        SAILR("MlpPolicy", "SafePointCircle-v0", on_intervention="continue", **TINY_SAILR)
     env = make_vec_env("SafePointCircle-v0", n_envs=1, vec_env_cls=SubprocVecEnv, vec_env_kwargs=dict(start_method="fork"))
     try:
         with pytest.raises(TypeError, match="wrapper_class"):

@@ -358,16 +358,51 @@ def test_wrapper_info_reports_the_executed_action() -> None:
     np.testing.assert_allclose(info[EXECUTED_ACTION_KEY], BRAKE.backup_action(obs[None].astype(np.float64))[0])
 
 
-def test_absorb_turns_an_intervention_into_the_absorbing_terminal() -> None:
-    env = ShieldWrapper(gym.make("SafePointCircle-v0"), AlwaysShield(), on_intervention="absorb", penalty=-3.0)
+def test_terminate_turns_an_intervention_into_the_absorbing_terminal() -> None:
+    env = ShieldWrapper(gym.make("SafePointCircle-v0"), AlwaysShield(), on_intervention="terminate", penalty=3.0)
     env.reset(seed=0)
     _, reward, terminated, truncated, info = env.step(np.ones(2, dtype=np.float32))
     assert (reward, terminated, truncated) == (-3.0, True, False)
     assert info[ABSORBED_KEY] and ENV_REWARD_KEY in info
 
 
+def test_continue_subtracts_the_penalty_from_intervened_steps_only() -> None:
+    """``"continue"``: the learner's step is the proposal's with the executed reward less the penalty; the default
+    penalty 0 tells it nothing (the shielded env)."""
+    told, silent = (ShieldWrapper(gym.make("SafePointCircle-v0"), AlwaysShield(), penalty=p) for p in (0.25, 0.0))
+    plain = gym.make("SafePointCircle-v0")
+    for env in (told, silent, plain):
+        env.reset(seed=0)
+    for _ in range(5):
+        _, told_reward, told_done, _, info = told.step(np.ones(2, dtype=np.float32))
+        _, silent_reward, _, _, _ = silent.step(np.ones(2, dtype=np.float32))
+        _, reward, *_ = plain.step(np.asarray(info[EXECUTED_ACTION_KEY], dtype=np.float32))
+        assert info[INTERVENED] and not told_done
+        assert told_reward == pytest.approx(reward - 0.25) and info[ENV_REWARD_KEY] == reward
+        assert silent_reward == reward
+    accepted = ShieldWrapper(gym.make("SafePointCircle-v0"), PointCircleShieldingRule(), penalty=0.25)
+    accepted.reset(seed=0)
+    _, reward, _, _, info = accepted.step(np.zeros(2, dtype=np.float32))
+    assert not info[INTERVENED] and ENV_REWARD_KEY not in info  # an accepted step keeps its reward
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"on_intervention": "absorb"}, "not a value of sppo_sb3.shield.intervention; ShieldWrapper takes"),
+        ({"on_intervention": "restart"}, "ShieldWrapper cannot implement on_intervention='restart'"),
+        ({"on_intervention": "none"}, "ShieldWrapper cannot implement on_intervention='none'"),
+        ({"penalty": -1.0}, "a number >= 0.*for R̃ = -1 pass penalty=1.0"),
+        ({"on_intervention": "takeover", "penalty": 1.0}, "pass penalty=0.0"),
+    ],
+)
+def test_wrapper_rejects_what_it_cannot_implement(kwargs: dict[str, Any], message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        ShieldWrapper(gym.make("SafePointCircle-v0"), "auto", **kwargs)
+
+
 def test_sac_stores_the_proposal_in_the_absorbing_mdp() -> None:
-    env = ShieldWrapper(gym.make("SafePointCircle-v0"), AlwaysShield(), on_intervention="absorb")
+    env = ShieldWrapper(gym.make("SafePointCircle-v0"), AlwaysShield(), on_intervention="terminate", penalty=1.0)
     model = SAC("MlpPolicy", env, learning_starts=1000, buffer_size=1000, seed=0)
     callback = RecordInfos()
     model.learn(50, callback=callback)

@@ -228,11 +228,9 @@ def test_in_shielding_set_boundary() -> None:
     np.testing.assert_array_equal(in_shielding_set(np.array([0.0]), 0.0), [False])
 
 
-def test_invalid_eta_and_penalty() -> None:
+def test_invalid_eta() -> None:
     with pytest.raises(ValueError, match="Proposition 1"):
         FirstCoordinateRule(eta=-0.1)
-    with pytest.raises(ValueError, match="penalty"):
-        FirstCoordinateRule(penalty=0.5)
 
 
 # --------------------------------------------------------------------------------------------- ShieldWrapper

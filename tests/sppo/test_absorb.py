@@ -101,7 +101,7 @@ def test_termination_head_learns_the_absorbing_flags() -> None:
         terminals = (actions[..., 0] > 0).float()
         ones = th.ones(1, 64)
         batch = SequenceSamples(obs, actions, -terminals, th.randn(1, 64, 3), terminals, ones, ones - terminals)
-        stats = topo_update(model, target, optimizer, pi_optimizer, batch, th.zeros(1, 64, 2), lr, ema, TOPOConfig())
+        stats = topo_update(model, target, optimizer, pi_optimizer, batch, th.zeros(1, 64, 2), lr, ema, TOPOConfig(), GAMMA)
     obs, actions = th.randn(256, 3), th.rand(256, 2) * 2 - 1
     with th.no_grad():
         predicted_end = model.continuation(model.encode(obs), actions) < 0.5

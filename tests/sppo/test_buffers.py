@@ -23,7 +23,7 @@ def fill(buffer: ShieldedReplayBuffer, episodes: list[list[bool]]) -> None:
 
 
 def test_absorbing_relabel_terminates_at_first_intervention():
-    buffer = ShieldedReplayBuffer(100, OBS, ACT, device="cpu", penalty=-1.0, absorbing="terminate")
+    buffer = ShieldedReplayBuffer(100, OBS, ACT, device="cpu", penalty=1.0, on_intervention="terminate")
     fill(buffer, [[False, False, True, False, True, False], [False, False]])
     # B holds every real step
     assert buffer.size() == 8
@@ -49,7 +49,7 @@ def test_absorbing_relabel_terminates_at_first_intervention():
 
 
 def test_restart_mode_keeps_learning_after_an_intervention():
-    buffer = ShieldedReplayBuffer(100, OBS, ACT, device="cpu", absorbing="restart")
+    buffer = ShieldedReplayBuffer(100, OBS, ACT, device="cpu", on_intervention="restart")
     fill(buffer, [[False, True, False, False]])
     assert buffer.relabel_valid[:4, 0].all()
     batch = buffer.sample_sequences(128, 3)
@@ -60,7 +60,7 @@ def test_restart_mode_keeps_learning_after_an_intervention():
 
 def test_sequences_never_cross_episode_ends_or_the_write_head():
     rng = np.random.default_rng(0)
-    buffer = ShieldedReplayBuffer(50, OBS, ACT, device="cpu", absorbing="terminate")
+    buffer = ShieldedReplayBuffer(50, OBS, ACT, device="cpu", on_intervention="terminate")
     lengths = rng.integers(1, 7, size=30)
     fill(buffer, [[False] * int(n) for n in lengths])  # wraps the 50-step buffer several times
     episode_of = np.repeat(np.arange(len(lengths)), lengths)
@@ -89,14 +89,15 @@ def sequences_from(buffer: ShieldedReplayBuffer, start: int, length: int) -> dic
 
 
 def test_continue_mode_penalises_the_proposal_without_a_terminal():
-    """Where a violation does not end the episode, the rejected proposal costs R̃ and its value bootstraps from s'."""
-    buffer = ShieldedReplayBuffer(100, OBS, ACT, device="cpu", penalty=-3.0, absorbing="continue")
+    """Where a violation does not end the episode, the rejected proposal costs the penalty and its value bootstraps
+    from s'."""
+    buffer = ShieldedReplayBuffer(100, OBS, ACT, device="cpu", penalty=3.0, on_intervention="continue")
     fill(buffer, [[False, True, False, False]])
     assert buffer.relabel_valid[:4, 0].all()
     seq = sequences_from(buffer, 0, 3)
     np.testing.assert_array_equal(seq["mask"], [1, 1, 0])  # TOLD's roll stops: s' did not follow the proposal
     np.testing.assert_allclose(seq["actions"][:2], [0.5, 1.0])  # the proposal (2.0 scaled to 1.0) at the intervention
-    np.testing.assert_allclose(seq["rewards"][:2], [1.0, 1.0 - 3.0])  # its reward plus the penalty
+    np.testing.assert_allclose(seq["rewards"][:2], [1.0, 1.0 - 3.0])  # its reward less the penalty
     np.testing.assert_array_equal(seq["terminals"][:2], [0, 0])  # not a death: the TD target bootstraps from s'
     np.testing.assert_array_equal(seq["consistency_mask"], [1, 0, 0])
     after = sequences_from(buffer, 2, 2)  # and learning goes on from the next real state
@@ -104,7 +105,7 @@ def test_continue_mode_penalises_the_proposal_without_a_terminal():
 
 
 def test_none_mode_learns_the_executed_steps_as_they_were():
-    buffer = ShieldedReplayBuffer(100, OBS, ACT, device="cpu", penalty=-3.0, absorbing="none")
+    buffer = ShieldedReplayBuffer(100, OBS, ACT, device="cpu", penalty=3.0, on_intervention="none")
     fill(buffer, [[False, True, False, False]])
     seq = sequences_from(buffer, 0, 3)
     np.testing.assert_allclose(seq["actions"], [0.5, 0.5, 0.5])  # the executed (backup) action, env units 1.0
@@ -115,5 +116,13 @@ def test_none_mode_learns_the_executed_steps_as_they_were():
 
 
 def test_an_unknown_mode_is_a_clear_error():
-    with pytest.raises(ValueError, match="'terminate', 'restart', 'continue', 'none'"):
-        ShieldedReplayBuffer(10, OBS, ACT, device="cpu", absorbing="stop")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="takes 'terminate', 'restart', 'continue', 'none'"):
+        ShieldedReplayBuffer(10, OBS, ACT, device="cpu", on_intervention="stop")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="cannot implement on_intervention='takeover'"):
+        ShieldedReplayBuffer(10, OBS, ACT, device="cpu", on_intervention="takeover")
+
+
+def test_a_negative_penalty_is_a_clear_error():
+    """One sign convention: a penalty is what an intervention costs, >= 0 (R̃ = -penalty)."""
+    with pytest.raises(ValueError, match=r"a number >= 0.*got -1\.0"):
+        ShieldedReplayBuffer(10, OBS, ACT, device="cpu", penalty=-1.0)

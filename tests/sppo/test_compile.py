@@ -109,7 +109,7 @@ def test_compiled_plan_equals_eager_given_the_same_noise():
     model = make_policy().model
     cfg = MPPIConfig(**TINY_MPPI, horizon=3, num_candidates=3)
     noise = draw_noise(cfg, 2, 3, 2, False, th.Generator().manual_seed(3), CPU)
-    args = (model, th.randn(2, 4), th.rand(2, 3, 2) - 0.5, noise, th.tensor(0.1), cfg)
+    args = (model, th.randn(2, 4), th.rand(2, 3, 2) - 0.5, noise, th.tensor(0.1), cfg, 0.99)
     compiled = CompiledFunction(mppi, True, CPU, "planner")
     with th.no_grad():
         eager_action, eager_mean, eager_alternatives = mppi(*args)
@@ -192,8 +192,8 @@ def test_compiled_topo_update_equals_eager_on_cuda():
         ema = th.tensor(0.01 if i % 2 else 0.0, device=cuda)
         lr = th.tensor(1e-3, device=cuda)
         models = lambda p: (p.model, p.model_target, p.optimizer, p.pi_optimizer)  # noqa: E731
-        eager = topo_update(*models(eager_policy), batch, noise, lr, ema, cfg)
-        comp = compiled(*models(compiled_policy), batch, noise, lr, ema, cfg).clone()
+        eager = topo_update(*models(eager_policy), batch, noise, lr, ema, cfg, 0.99)
+        comp = compiled(*models(compiled_policy), batch, noise, lr, ema, cfg, 0.99).clone()
         th.testing.assert_close(comp, eager, rtol=1e-4, atol=1e-5)
     assert compiled.compiled
 

@@ -19,6 +19,8 @@ from sppo_sb3.sppo.planner import (
 )
 from sppo_sb3.sppo.world_model import ELU, TOLD
 
+GAMMA = 0.99  # the planner's discount, SPPO's gamma
+
 
 def tiny_model(obs_dim: int = 3, action_dim: int = 2) -> TOLD:
     th.manual_seed(0)
@@ -56,7 +58,7 @@ def test_schedules_decay_linearly():
 
 def small_planner(**overrides) -> MPPIPlanner:
     cfg = MPPIConfig(**{"num_samples": 32, "num_elites": 4, "iterations": 3, "horizon": 3, "horizon_warmup": 0, **overrides})
-    return MPPIPlanner(cfg, action_dim=2)
+    return MPPIPlanner(cfg, action_dim=2, gamma=GAMMA)
 
 
 def plan(planner: MPPIPlanner, model: TOLD, obs: th.Tensor, **kwargs) -> th.Tensor:
@@ -92,18 +94,18 @@ def test_candidates_are_the_plan_then_the_first_iterations_best_first_actions():
     noise = draw_noise(cfg, 2, 2, 2, True, th.Generator().manual_seed(1), th.device("cpu"))
     obs, warm = th.randn(2, 3), th.zeros(2, 2, 2)
     with th.no_grad():
-        _, _, alternatives = mppi(model, obs, warm, noise, th.tensor(0.1), cfg)
+        _, _, alternatives = mppi(model, obs, warm, noise, th.tensor(0.1), cfg, GAMMA)
         samples = (warm.unsqueeze(1) + cfg.max_std * noise.samples[0]).clamp(-1.0, 1.0)  # (E, N, H, A)
         z = model.encode(obs).repeat_interleave(cfg.num_samples, 0)
         flat = samples.permute(2, 0, 1, 3).reshape(2, -1, 2)
-        returns = trajectory_return(model, z, flat, cfg.gamma, cfg.policy_std, noise.terminal[0]).view(2, -1)
+        returns = trajectory_return(model, z, flat, GAMMA, cfg.policy_std, noise.terminal[0]).view(2, -1)
     assert alternatives.shape == (2, 3, 2)
     for env in range(2):
         rows = [int(th.nonzero((samples[env, :, 0] == a).all(-1))[0]) for a in alternatives[env]]
         ranked = returns[env, rows]
         assert th.all(ranked[:-1] >= ranked[1:])  # best first
         assert ranked[0] == returns[env].max()
-    planner = MPPIPlanner(cfg, action_dim=2)
+    planner = MPPIPlanner(cfg, action_dim=2, gamma=GAMMA)
     plan = planner.plan(model, obs, planner.initial_mean(2), 0, deterministic=True, generator=th.Generator().manual_seed(1))
     assert plan.candidates.shape == (2, 4, 2) and th.equal(plan.candidates[:, 0], plan.action)
     with pytest.raises(ValueError, match="num_candidates"):
@@ -140,9 +142,9 @@ def test_mppi_is_a_function_of_its_noise():
     noise = draw_noise(cfg, 2, 3, 2, False, None, th.device("cpu"))
     obs, warm, min_std = th.randn(2, 3), th.zeros(2, 3, 2), th.tensor(0.1)
     with th.no_grad():
-        first = mppi(model, obs, warm, noise, min_std, cfg)
+        first = mppi(model, obs, warm, noise, min_std, cfg, GAMMA)
         th.manual_seed(123)
-        second = mppi(model, obs, warm, noise, min_std, cfg)
+        second = mppi(model, obs, warm, noise, min_std, cfg, GAMMA)
     assert th.equal(first[0], second[0]) and th.equal(first[1], second[1])
 
 
@@ -167,7 +169,7 @@ def test_planner_prefers_high_reward_actions():
         model.reward[0].bias.fill_(1.0)
         model.reward[2].weight.copy_(th.eye(TINY_TOLD["hidden_dim"]))  # hidden = a + 1 >= 0 passes both ELUs unchanged
         model.reward[-1].weight.fill_(0.1)
-    planner = MPPIPlanner(MPPIConfig(num_samples=64, num_elites=8, iterations=4, horizon=2, horizon_warmup=0), 1)
+    planner = MPPIPlanner(MPPIConfig(num_samples=64, num_elites=8, iterations=4, horizon=2, horizon_warmup=0), 1, GAMMA)
     th.manual_seed(0)
     assert planner.plan(model, th.zeros(1, 3), planner.initial_mean(1), step=10**6, deterministic=True)[0].item() > 0.8
 

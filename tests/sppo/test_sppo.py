@@ -54,9 +54,9 @@ def test_every_executed_action_is_shielded_and_safe():
     assert unshielded.safety_metrics.safety_rate < 100.0
 
 
-@pytest.mark.parametrize("absorbing", ["terminate", "restart"])
-def test_b_tilde_holds_the_absorbing_relabel_of_real_interventions(absorbing):
-    model = tiny_sppo(learning_starts=400, absorbing=absorbing).learn(400)
+@pytest.mark.parametrize("on_intervention", ["terminate", "restart"])
+def test_b_tilde_holds_the_absorbing_relabel_of_real_interventions(on_intervention):
+    model = tiny_sppo(learning_starts=400, on_intervention=on_intervention).learn(400)
     buffer = model.replay_buffer
     n = buffer.pos
     assert buffer.intervened[:n].any()
@@ -67,7 +67,7 @@ def test_b_tilde_holds_the_absorbing_relabel_of_real_interventions(absorbing):
     first = np.flatnonzero(buffer.intervened[:n, 0])[0]
     episode_end = first + np.flatnonzero(buffer.dones[first:n, 0])[:1]
     stop = int(episode_end[0]) + 1 if len(episode_end) else n
-    if absorbing == "terminate":  # the paper's M̃: nothing of an episode follows its first intervention
+    if on_intervention == "terminate":  # the paper's M̃: nothing of an episode follows its first intervention
         assert not buffer.relabel_valid[first + 1 : stop, 0].any()
     else:  # B̃ restarts at the next real state
         assert buffer.relabel_valid[:n, 0].all()
@@ -162,7 +162,7 @@ def test_topo_loss_decreases_on_a_fixed_batch():
     init_optimizer_state(pol.optimizer)
     init_optimizer_state(pol.pi_optimizer)
     loss = TOPO_STATS.index("loss")
-    args = (pol.model, pol.model_target, pol.optimizer, pol.pi_optimizer, batch, noise, lr, ema, cfg)
+    args = (pol.model, pol.model_target, pol.optimizer, pol.pi_optimizer, batch, noise, lr, ema, cfg, model.gamma)
     losses = [topo_update(*args)[loss].item() for _ in range(60)]
     assert np.mean(losses[-5:]) < 0.5 * np.mean(losses[:5])
 
@@ -339,11 +339,11 @@ def test_n_updates_is_logged_as_sac_logs_it(train_freq) -> None:
     assert logged[SPPO][-1] is not None and logged[SPPO][-1] > 0
 
 
-@pytest.mark.parametrize("absorbing", ["continue", "none"])
-def test_cmdp_relabels_train_shielded(absorbing: str) -> None:
+@pytest.mark.parametrize("on_intervention", ["continue", "none"])
+def test_cmdp_relabels_train_shielded(on_intervention: str) -> None:
     """The relabels for tasks where a violation does not end the episode train end to end, still shielded."""
-    model = tiny_sppo(absorbing=absorbing, absorbing_penalty=-2.0).learn(200)
-    assert model.replay_buffer.absorbing == absorbing and model.replay_buffer.penalty == -2.0
+    model = tiny_sppo(on_intervention=on_intervention, penalty=2.0).learn(200)
+    assert model.replay_buffer.on_intervention == on_intervention and model.replay_buffer.penalty == 2.0
     assert model.safety_metrics.violations == 0 and model.safety_metrics.interventions > 0
 
 

@@ -30,7 +30,15 @@ def test_episode_discount_rejects_a_non_positive_length() -> None:
 def test_auto_gamma_reaches_the_planner_and_the_update(env_id: str, gamma: float) -> None:
     model = SPPO("TOLDPolicy", env_id, gamma="auto", **TINY_SPPO)
     assert model.gamma == pytest.approx(gamma)
-    assert model.planner_config.gamma == model.topo_config.gamma == model.gamma
+    assert model.planner.gamma == model.gamma  # the planner reads the one resolved discount; the update is given it
+    assert not hasattr(model.planner_config, "gamma") and not hasattr(model.topo_config, "gamma")
+
+
+@pytest.mark.parametrize("kwargs", ["planner_kwargs", "topo_kwargs"])
+def test_a_discount_in_the_planner_or_update_settings_names_sppos_gamma(kwargs: str) -> None:
+    """One source: SPPO's gamma; a second one in the planner's or the update's settings is refused, not merged."""
+    with pytest.raises(ValueError, match=rf"remove 'gamma' from {kwargs} and pass SPPO\(\.\.\., gamma=0\.9\)"):
+        SPPO("TOLDPolicy", "SafePointCircle-v0", **{**TINY_SPPO, kwargs: {**TINY_SPPO.get(kwargs, {}), "gamma": 0.9}})
 
 
 def test_auto_gamma_without_a_time_limit_is_the_papers() -> None:
@@ -41,14 +49,14 @@ def test_auto_gamma_without_a_time_limit_is_the_papers() -> None:
 
 def test_a_number_is_the_discount_as_given() -> None:
     model = SPPO("TOLDPolicy", "sppo_sb3/SafetyHopperVelocity-v1", gamma=0.99, **TINY_SPPO)
-    assert model.gamma == model.planner_config.gamma == model.topo_config.gamma == 0.99
+    assert model.gamma == model.planner.gamma == 0.99
 
 
 def test_the_resolved_discount_is_saved(tmp_path: Path) -> None:
     model = SPPO("TOLDPolicy", "sppo_sb3/SafetyHopperVelocity-v1", gamma="auto", **TINY_SPPO)
     model.save(tmp_path / "model")
     loaded = SPPO.load(tmp_path / "model")
-    assert loaded.gamma == loaded.planner_config.gamma == loaded.topo_config.gamma == pytest.approx(0.995)
+    assert loaded.gamma == loaded.planner.gamma == pytest.approx(0.995)
 
 
 @pytest.mark.parametrize(

@@ -128,9 +128,11 @@ def test_td_target_takes_the_min_of_the_chosen_target_heads(heads: list[int] | N
         zero_last_layer(head, q)
     for head in model.q_heads:  # the online heads, which the target must not use
         zero_last_layer(head, 100.0)
-    cfg, data = TOPOConfig(gamma=0.9), batch()
+    cfg, data = TOPOConfig(), batch()
     index = None if heads is None else th.tensor(heads)
-    target_q = td_target(model, target, data.next_observations, data.rewards, data.terminals, th.zeros(H, B, ACT), cfg, index)
+    target_q = td_target(
+        model, target, data.next_observations, data.rewards, data.terminals, th.zeros(H, B, ACT), cfg, 0.9, index
+    )
     th.testing.assert_close(target_q, data.rewards + 0.9 * (1.0 - data.terminals) * value)
     assert target_q[1, 2] == data.rewards[1, 2]  # no bootstrap after a terminal
 
@@ -169,6 +171,7 @@ def test_the_value_loss_trains_all_five_heads_on_the_target() -> None:
         th.tensor(1e-2),
         th.tensor(0.0),
         TOPOConfig(),
+        0.99,
         th.tensor([0, 3]),
     )
     assert th.isfinite(stats).all() and stats[TOPO_STATS.index("value")] > 0
@@ -186,7 +189,7 @@ def test_the_bf16_planner_keeps_every_ensemble_head_output_in_fp32() -> None:
     cfg = MPPIConfig(num_samples=16, num_elites=4, iterations=2, horizon=3)
     noise = draw_noise(cfg, 2, 3, ACT, True, th.Generator().manual_seed(0), th.device("cpu"))
     with th.no_grad():
-        action, _, _ = mppi(shadow, th.randn(2, OBS), th.zeros(2, 3, ACT), noise, th.tensor(0.1), cfg)
+        action, _, _ = mppi(shadow, th.randn(2, OBS), th.zeros(2, 3, ACT), noise, th.tensor(0.1), cfg, 0.99)
     assert action.dtype == th.float32 and th.isfinite(action).all()
 
 
@@ -216,7 +219,7 @@ def test_compiled_tdmpc2_update_equals_eager_given_the_same_heads(compilation_on
     data, cfg, noise = batch(), TOPOConfig(), th.randn(H, B, ACT, generator=th.Generator().manual_seed(2))
     for i, heads in enumerate(([0, 3], [4, 1], [2, 0])):
         ema, lr = th.tensor(0.01 if i % 2 else 0.0), th.tensor(1e-3)
-        args = (data, noise, lr, ema, cfg, th.tensor(heads))
+        args = (data, noise, lr, ema, cfg, 0.99, th.tensor(heads))
         eager = topo_update(
             eager_policy.model, eager_policy.model_target, eager_policy.optimizer, eager_policy.pi_optimizer, *args
         )

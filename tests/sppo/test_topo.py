@@ -50,11 +50,11 @@ def test_td_target_is_reward_plus_discounted_min_of_the_target_twin_q() -> None:
     zero_last_layer(target.q2, 5.0)
     zero_last_layer(model.q1, 100.0)  # the online heads, which the target must not use
     zero_last_layer(model.q2, 100.0)
-    cfg = TOPOConfig(gamma=0.9)
+    cfg = TOPOConfig()
     terminals = th.zeros(H, B)
     terminals[1, 2] = 1.0
     data = batch(terminals)
-    target_q = td_target(model, target, data.next_observations, data.rewards, data.terminals, th.zeros(H, B, ACT), cfg)
+    target_q = td_target(model, target, data.next_observations, data.rewards, data.terminals, th.zeros(H, B, ACT), cfg, 0.9)
     expected = data.rewards + 0.9 * (1.0 - terminals) * 3.0
     th.testing.assert_close(target_q, expected)
     assert target_q[1, 2] == data.rewards[1, 2]  # no bootstrap after a terminal
@@ -65,7 +65,7 @@ def test_consistency_loss_is_against_the_target_encoder() -> None:
     zero_last_layer(target.encoder, 0.25)  # h⁻(s') ≡ 0.25 in every latent dimension
     cfg = TOPOConfig(rho=0.5)
     data = batch()
-    _, _, _, _, consistency, _ = model_loss(model, target, data, th.zeros(H, B, ACT), cfg)
+    _, _, _, _, consistency, _ = model_loss(model, target, data, th.zeros(H, B, ACT), cfg, 0.99)
     with th.no_grad():
         z = model.encode(data.observations)
         expected = th.zeros(())
@@ -94,7 +94,9 @@ def test_policy_step_moves_pi_alone(termination: bool) -> None:
         init_optimizer_state(opt)
     before = {name: p.detach().clone() for name, p in model.named_parameters()}
     cfg = TOPOConfig(reward_coef=0.0, value_coef=0.0, consistency_coef=0.0, termination_coef=0.0)
-    topo_update(model, target, optimizer, pi_optimizer, batch(), th.zeros(H, B, ACT), th.tensor(1e-2), th.tensor(0.0), cfg)
+    topo_update(
+        model, target, optimizer, pi_optimizer, batch(), th.zeros(H, B, ACT), th.tensor(1e-2), th.tensor(0.0), cfg, 0.99
+    )
     changed = {name for name, p in model.named_parameters() if not th.equal(p, before[name])}
     assert changed and all(name.startswith("pi.") for name in changed)
     for name, p in target.named_parameters():  # EMA weight 0: the target is untouched too
@@ -117,7 +119,7 @@ def test_update_logs_the_hand_computed_terms_and_steps_pi_alone(path: str) -> No
     terminals = th.zeros(H, B)
     terminals[1, 2] = terminals[2, 0] = 1.0
     data = batch(terminals)
-    cfg = TOPOConfig(gamma=0.9, rho=0.5, reward_coef=0.0, value_coef=0.0, consistency_coef=0.0, termination_coef=0.0)
+    cfg = TOPOConfig(rho=0.5, reward_coef=0.0, value_coef=0.0, consistency_coef=0.0, termination_coef=0.0)
 
     with th.no_grad():  # eqs. 14–17 by hand
         z, reward, value, consistency = model.encode(data.observations), 0.0, 0.0, 0.0
@@ -135,7 +137,9 @@ def test_update_logs_the_hand_computed_terms_and_steps_pi_alone(path: str) -> No
         init_optimizer_state(opt)
     before = {name: p.detach().clone() for name, p in model.named_parameters()}
     update = CompiledFunction(topo_update, path == "compiled", th.device("cpu"), "TOPO update")
-    stats = update(model, target, optimizer, pi_optimizer, data, th.zeros(H, B, ACT), th.tensor(1e-2), th.tensor(0.0), cfg)
+    stats = update(
+        model, target, optimizer, pi_optimizer, data, th.zeros(H, B, ACT), th.tensor(1e-2), th.tensor(0.0), cfg, 0.9
+    )
     assert update.compiled == (path == "compiled")
     logged = dict(zip(TOPO_STATS, stats.tolist(), strict=True))
     assert logged["reward"] == pytest.approx(float(reward), rel=1e-5)

@@ -396,7 +396,7 @@ def test_constructor_kwargs_are_the_yml_entry_as_the_constructor_takes_it(tmp_pa
 
 def test_monitor_records_the_episodes_an_absorbing_shield_ends(tmp_path: Path) -> None:
     """rl-zoo3's env_wrapper goes inside Monitor: an episode that ShieldWrapper ends at an intervention is recorded."""
-    shield = {"rule": "auto", "on_intervention": "absorb"}
+    shield = {"rule": "auto", "on_intervention": "terminate"}
     env = cost_monitored_make_vec_env(
         "SafePointCircle-v0", 1, wrapper_class=ShieldWrapper, wrapper_kwargs=shield, monitor_dir=str(tmp_path)
     )

@@ -68,7 +68,6 @@ class RefinableRule(ShieldingRule):
     :param backup_policy: the known backup ``ζ``: ``(B, obs_dim)`` observations → ``(B, act_dim)`` actions in env units.
     :param gamma: discount of ``Q̄``.
     :param eta: advantage threshold ``η >= 0``.
-    :param penalty: absorbing reward ``R̃ <= 0`` of eq. 7.
     :param seed: seeds the minibatch sampling (``None``: not seeded).
     """
 
@@ -79,10 +78,9 @@ class RefinableRule(ShieldingRule):
         backup_policy: BackupPolicy,
         gamma: float,
         eta: float,
-        penalty: float,
         seed: int | None,
     ) -> None:
-        super().__init__(eta=eta, penalty=penalty)
+        super().__init__(eta=eta)
         if not isinstance(observation_space, gym.spaces.Box):
             raise TypeError(f"{type(self).__name__} needs a flat Box observation space, got {observation_space}.")
         if not isinstance(action_space, gym.spaces.Box):

@@ -76,7 +76,6 @@ class LearnedCostCriticRule(RefinableRule):
         in the env's action units, inside the action space.
     :param gamma: discount of ``Q̄``; also the upper bound of Definition 2.
     :param eta: advantage threshold ``η >= 0``.
-    :param penalty: absorbing reward ``R̃ <= 0`` of eq. 7.
     :param net_arch: hidden layer sizes of the critic MLP (ReLU).
     :param lr: Adam learning rate.
     :param tau: EMA coefficient of the target critic, applied after every gradient step. Each backup carries a cost
@@ -95,14 +94,13 @@ class LearnedCostCriticRule(RefinableRule):
         backup_policy: BackupPolicy,
         gamma: float = 0.99,
         eta: float = 0.0,
-        penalty: float = -1.0,
         net_arch: Sequence[int] = (64, 64),
         lr: float = 1e-3,
         tau: float = 0.01,
         device: th.device | str = "auto",
         seed: int | None = None,
     ) -> None:
-        super().__init__(observation_space, action_space, backup_policy, gamma, eta, penalty, seed)
+        super().__init__(observation_space, action_space, backup_policy, gamma, eta, seed)
         if not 0.0 < tau <= 1.0:
             raise ValueError(f"tau must be in (0, 1], got {tau}.")
         self.tau = float(tau)

@@ -39,7 +39,7 @@ class LearnedDynamicsRule(RefinableRule):
 
     **What it keeps.** With a model of one-step error ``ε`` the rolled ``Q̄`` is within some ``δ`` of the true
     ``Q̄^ζ``, and by Proposition 2.3 the rule is ``(β + (1 + γ)δ)``-adoptable; ``δ`` is measured, not bounded
-    (docs/results.md). Both terms of ``Ā`` are rolled on the same model in batches of one shape, so
+    (:mod:`sppo_sb3.shield.analysis`). Both terms of ``Ā`` are rolled on the same model in batches of one shape, so
     ``Ā(s, ζ(s)) = 0`` exactly and the backup is never shielded (Proposition 1).
 
     :param observation_space: the env's flat Box observation space; the rule reads raw observations.
@@ -52,7 +52,6 @@ class LearnedDynamicsRule(RefinableRule):
     :param gamma: discount of ``Q̄``.
     :param horizon: steps of each rollout: long enough for ``ζ`` to make any state safe for good (e.g. to stop).
     :param eta: advantage threshold ``η >= 0`` (shaped scale).
-    :param penalty: absorbing reward ``R̃ <= 0`` of eq. 7.
     :param net_arch: hidden layer sizes of the dynamics MLP (ELU).
     :param lr: Adam learning rate.
     :param device: torch device (``"auto"``: CUDA when available).
@@ -70,13 +69,12 @@ class LearnedDynamicsRule(RefinableRule):
         gamma: float = 0.99,
         horizon: int = 30,
         eta: float = 0.0,
-        penalty: float = -1.0,
         net_arch: Sequence[int] = (128, 128),
         lr: float = 1e-3,
         device: th.device | str = "auto",
         seed: int | None = None,
     ) -> None:
-        super().__init__(observation_space, action_space, backup_policy, gamma, eta, penalty, seed)
+        super().__init__(observation_space, action_space, backup_policy, gamma, eta, seed)
         for name, function in (("is_unsafe", is_unsafe), ("distance", distance)):
             if not callable(function):
                 raise TypeError(f"{name} must be a callable of observations (B, obs_dim) -> (B,), got {function!r}.")

@@ -61,7 +61,7 @@ class LatentModelRule(RefinableRule):
 
     **What it keeps.** ``Ā(s, ζ(s)) = 0`` exactly: both terms are rolled in batches of one shape, so the backup is never
     shielded (Proposition 1). With ``Q̄`` within ``δ`` of the true ``Q̄^ζ`` the rule is ``(β + (1 + γ)δ)``-adoptable
-    (Proposition 2.3); ``δ`` is measured (docs/results.md), not bounded.
+    (Proposition 2.3); ``δ`` is measured (:mod:`sppo_sb3.shield.analysis`), not bounded.
 
     :param observation_space: the env's flat Box observation space; the rule reads raw observations.
     :param action_space: the env's Box action space.
@@ -69,7 +69,6 @@ class LatentModelRule(RefinableRule):
     :param gamma: discount of ``Q̄``.
     :param horizon: latent steps of each roll: long enough for ``ζ`` to make any state safe for good (e.g. to stop).
     :param eta: advantage threshold ``η >= 0`` (shaped scale).
-    :param penalty: absorbing reward ``R̃ <= 0`` of eq. 7.
     :param net_arch: hidden layer sizes of the cost and backup heads (ELU).
     :param lr: Adam learning rate of the heads.
     :param device: torch device of the heads (``"auto"``: CUDA when available); :meth:`bind` moves them to TOLD's.
@@ -84,13 +83,12 @@ class LatentModelRule(RefinableRule):
         gamma: float = 0.99,
         horizon: int = 30,
         eta: float = 0.0,
-        penalty: float = -1.0,
         net_arch: Sequence[int] = (128, 128),
         lr: float = 1e-3,
         device: th.device | str = "auto",
         seed: int | None = None,
     ) -> None:
-        super().__init__(observation_space, action_space, backup_policy, gamma, eta, penalty, seed)
+        super().__init__(observation_space, action_space, backup_policy, gamma, eta, seed)
         if horizon < 1:
             raise ValueError(f"horizon must be at least 1 step, got {horizon}.")
         self.horizon, self.net_arch, self.lr = int(horizon), tuple(int(n) for n in net_arch), float(lr)

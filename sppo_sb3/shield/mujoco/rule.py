@@ -107,7 +107,6 @@ class MujocoShieldingRule(ShieldingRule):
     :param alpha: shaped-cost band width of eq. 18, in the constraint's distance units.
     :param gamma: discount of ``Q̄`` (paper: 0.99).
     :param eta: advantage threshold ``η`` (on the shaped scale, where a violation is worth about ``1 / (1 - γ)``).
-    :param penalty: absorbing reward ``R̃``.
     :param seed: seed of the particle noise ``ε`` (``None``: fresh entropy).
     :param certify: skip the solves that a certificate makes unnecessary (same decisions); ``False`` solves
         ``ζ(s)``, ``Q̄(s, a)`` and ``Q̄(s, ζ(s))`` on every step, the reference.
@@ -133,7 +132,6 @@ class MujocoShieldingRule(ShieldingRule):
         alpha: float = 0.05,
         gamma: float = 0.99,
         eta: float = 0.2,
-        penalty: float = -1.0,
         seed: int | None = 0,
         certify: bool = True,
         certificate_particles: int = 16,
@@ -142,7 +140,7 @@ class MujocoShieldingRule(ShieldingRule):
         warm_starts: int = 256,
         env_kwargs: dict[str, Any] | None = None,
     ) -> None:
-        super().__init__(eta=eta, penalty=penalty)
+        super().__init__(eta=eta)
         if horizon < 2 or n_particles < 1 or temperature <= 0 or noise_std < 0 or alpha < 0:
             raise ValueError("Need horizon >= 2, n_particles >= 1, temperature > 0, noise_std >= 0 and alpha >= 0.")
         if not 0 <= constant_particles < n_particles:

@@ -63,7 +63,6 @@ class PointCircleShieldingRule(ShieldingRule):
         that a policy learned under it keeps when deployed without it.
     :param gamma: discount of ``Q̄`` (paper: 0.99).
     :param eta: advantage threshold (paper: 0).
-    :param penalty: absorbing reward ``R̃``.
     :param backup: ``"wall"`` (brake ``x``, and ``y`` near its limit) or ``"sailr"`` (the paper's: brake both axes).
     """
 
@@ -73,10 +72,9 @@ class PointCircleShieldingRule(ShieldingRule):
         alpha: float = 0.05,
         gamma: float = 0.99,
         eta: float = 0.0,
-        penalty: float = -1.0,
         backup: PointBackup = "wall",
     ) -> None:
-        super().__init__(eta=eta, penalty=penalty)
+        super().__init__(eta=eta)
         if backup not in ("wall", "sailr"):
             raise ValueError(f"backup must be 'wall' (brake x, and y near its limit) or 'sailr' (brake both), got {backup!r}.")
         self.params = params or PointParams()
