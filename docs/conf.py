@@ -28,12 +28,11 @@ extensions = [
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
 root_doc = "index"
 
-# Data, not pages: the tables and summaries scripts/plot_results.py and the benchmarks write next to their figures and
-# runs. The pages that show them include them (docs/results/appendix_tables.md) or offer their files for download.
+# Data, not pages: the tables and summaries scripts/plot_results.py writes next to its figures. The pages that show them
+# include them (docs/results/appendix_tables.md) or offer their files for download.
 exclude_patterns = [
     "_build",
     "figures/**",
-    "benchmarks/*/**",
 ]
 
 # MyST: anchors for headings down to ####, so that `page.md#a-heading` links resolve as they do on GitHub.

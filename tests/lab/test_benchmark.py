@@ -324,7 +324,7 @@ def test_a_variant_is_its_own_row_beside_its_algorithm(tmp_path: Path, capsys: p
 def test_every_committed_run_is_named_by_its_folder() -> None:
     """The tables group runs by ``run_name(algo, variant)`` from each summary: a run moved to another variant's folder
     (``sppo`` → ``sppo-previous``) must say so in its summary, or its seeds are pooled with the folder it left."""
-    root = Path(__file__).resolve().parents[2] / "docs" / "benchmarks"
+    root = Path(__file__).resolve().parents[2] / "lab" / "runs"
     summaries = sorted(root.rglob("summary.json"))
     assert summaries
     for path in summaries:

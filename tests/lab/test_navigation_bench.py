@@ -10,7 +10,7 @@ import pandas as pd
 from sppo_lab import grid, stats
 from sppo_lab.navigation import OMNISAFE_NAVIGATION, navigation_overview_markdown, navigation_tables_markdown
 
-DOC = Path(__file__).resolve().parents[2] / "docs" / "benchmarks" / "omnisafe_navigation.md"
+DOC = Path(__file__).resolve().parents[2] / "lab" / "runs" / "omnisafe_navigation.md"
 ROW = re.compile(
     r"^\| (\w+)(?: \(unconstrained\))? \| [\w-]+ \| ([\de.]+)[^|]* \| ([-\d.]+) ± ([\d.]+) \| ([-\d.]+) ± ([\d.]+) \|"
 )

@@ -84,7 +84,7 @@ def test_fitted_heads_rank_danger_better_than_the_distance() -> None:
     model rule's than Q̄ ≡ 0. Measured with seeds 0-2 (this test runs seed 0) on an untrained TOLD of the Point
     settings' size: AUC 0.951-0.984 against the distance's 0.69, MAE 0.144-0.167 against Q̄ ≡ 0's 0.178-0.180. The
     rule's decisions are not asserted: they agree with the model rule's less often than never shielding does
-    (docs/results.md)."""
+    (docs/results/appendix_learned_shields.md)."""
     walk = held_action_walk(6000, 0, 20, 0.25, REFERENCE)
     model = latent_sppo(latent_point_rule(seed=0), told=dict(latent_dim=32, encoder_dim=64, hidden_dim=128))
     rule = model.shield_rule

@@ -191,7 +191,8 @@ def test_certificates_rolled_in_chunks_are_the_first_of_all_and_the_solve_reuses
 
 #: velocity limits tight enough for random proposals to break them within a few dozen steps. Not Ant and Humanoid:
 #: at such limits the test's small MPC cannot brake them (a falling humanoid's centre of mass outruns any small limit),
-#: and at their own limits random proposals rarely break them; their shielded SPPO runs are in docs/results.md.
+#: and at their own limits random proposals rarely break them; their shielded SPPO runs are in docs/results.md (the
+#: velocity grid).
 TIGHT = {
     "HalfCheetah-v4": VelocityConstraint(0.3),
     "Hopper-v4": VelocityConstraint(0.3),

@@ -256,9 +256,9 @@ def test_refine_shield_fits_a_learned_rule_toward_the_point_rules_cost_value() -
     B: 3000 uniform random warm-up steps through the (still untrained, so permissive) learned shield. On 3000 held-out
     random-walk pairs after 500 refinement minibatches, the bounds are set with margin from the measured mean absolute
     error against the model rule's Q̄ (both on Definition 2's scale) and the gap between the mean learned Q̄ of
-    dangerous pairs (model Q̄ > 0.5) and of harmless ones (model Q̄ = 0); the figures are in docs/results.md. The
-    fit ranks danger but is coarse: the bootstrap reads Q̄(s', ζ(s')) at the backup's actions, which random data rarely
-    holds.
+    dangerous pairs (model Q̄ > 0.5) and of harmless ones (model Q̄ = 0); the figures are in
+    docs/results/appendix_learned_shields.md. The fit ranks danger but is coarse: the bootstrap reads Q̄(s', ζ(s')) at
+    the backup's actions, which random data rarely holds.
     """
     env = gym.make("SafePointCircle-v0")
     model_rule = PointCircleShieldingRule()

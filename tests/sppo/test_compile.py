@@ -66,7 +66,7 @@ def run_updates(policy: TOLDPolicy, update, n: int = 3) -> list[th.Tensor]:
     for i in range(n):
         ema = th.tensor(0.01 if i % 2 else 0.0)
         models, optimizers = (policy.model, policy.model_target), (policy.optimizer, policy.pi_optimizer)
-        stats.append(update(*models, *optimizers, batch, noise, th.tensor(1e-3), ema, cfg).clone())
+        stats.append(update(*models, *optimizers, batch, noise, th.tensor(1e-3), ema, cfg, 0.99).clone())
     return stats
 
 
