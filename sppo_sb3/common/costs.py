@@ -12,7 +12,7 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 
-from sppo_sb3.common.keys import COST_KEY
+from sppo_sb3.common.keys import COST_KEY, COSTLY_STEPS_KEY, INTERVENED_KEY, INTERVENTIONS_KEY
 
 
 class MissingCostError(KeyError):
@@ -35,6 +35,18 @@ def shaped_cost(dist: np.ndarray | float, alpha: float) -> np.ndarray:
     if alpha == 0:
         return (dist <= 0).astype(np.float64)
     return np.maximum(0.0, 1.0 - dist / alpha)
+
+
+def costly_steps(info: dict[str, Any]) -> int:
+    """How many env steps of a step had a cost: ``info["costly_steps"]`` under an action repeat, else 1 or 0 from
+    ``info["cost"]`` (absent: 0)."""
+    return int(info.get(COSTLY_STEPS_KEY, float(info.get(COST_KEY, 0.0)) > 0))
+
+
+def intervention_count(info: dict[str, Any]) -> int:
+    """On how many env steps a shield replaced the action: ``info["shield_interventions"]`` under an action repeat,
+    else 1 or 0 from ``info["shield_intervened"]`` (0 where no shield reports)."""
+    return int(info.get(INTERVENTIONS_KEY, bool(info.get(INTERVENED_KEY, False))))
 
 
 def costs_from_infos(infos: Sequence[dict[str, Any]], required: bool = True) -> np.ndarray:

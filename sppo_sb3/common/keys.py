@@ -21,10 +21,16 @@ PROPOSED_ACTION_KEY = "proposed_action"
 EXECUTED_ACTION_KEY = "executed_action"
 #: ``Ā(s, a)`` of the proposal (eq. 5)
 ADVANTAGE_KEY = "shield_advantage"
-#: ``ShieldWrapper(on_intervention="absorb")`` turned the intervention into an absorbing terminal (eq. 7)
+#: ``ShieldWrapper(on_intervention="terminate")`` turned the intervention into an absorbing terminal (eq. 7)
 ABSORBED_KEY = "shield_absorbed"
-#: the env's own reward of an absorbed step (the learner saw ``R̃``)
+#: the env's own reward of a step whose learner saw another (``R̃``, or the reward less the penalty)
 ENV_REWARD_KEY = "env_reward"
+#: under an action repeat (:mod:`~sppo_sb3.common.action_repeat`): the env steps the held action ran for
+ENV_STEPS_KEY = "env_steps"
+#: under an action repeat: how many of those env steps had ``info["cost"] > 0`` (``info["cost"]`` is their sum)
+COSTLY_STEPS_KEY = "costly_steps"
+#: under an action repeat: how many of those env steps the shield replaced the held action
+INTERVENTIONS_KEY = "shield_interventions"
 #: on the step that ends an episode: the sum of its ``info["cost"]`` (a ``monitor.csv`` column)
 EPISODE_COST_INFO_KEY = "episode_cost"
 #: on the step that ends an episode: its steps with ``info["cost"] > 0`` (a ``monitor.csv`` column)

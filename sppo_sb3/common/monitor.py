@@ -26,6 +26,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
+from sppo_sb3.common.costs import costly_steps, intervention_count
 from sppo_sb3.common.keys import (
     COST_INFO_KEYWORDS,
     COST_KEY,
@@ -63,9 +64,9 @@ class EpisodeCostInfo(gym.Wrapper):
         obs, reward, terminated, truncated, info = self.env.step(action)
         cost = float(info.get(COST_KEY, 0.0))
         self._cost += cost
-        self._violations += int(cost > 0)
+        self._violations += costly_steps(info)  # env steps with a cost, under an action repeat too
         if INTERVENED_KEY in info:
-            self._interventions = (self._interventions or 0) + int(bool(info[INTERVENED_KEY]))
+            self._interventions = (self._interventions or 0) + intervention_count(info)
         if terminated or truncated:
             interventions = float("nan") if self._interventions is None else float(self._interventions)
             info = {
@@ -160,7 +161,7 @@ class CostEvalCallback(EvalCallback):
             self._running_violations = np.zeros(self.eval_env.num_envs, dtype=np.int64)
         cost = float(info.get(COST_KEY, 0.0))
         self._running_cost[idx] += cost
-        self._running_violations[idx] += int(cost > 0)
+        self._running_violations[idx] += costly_steps(info)
         # evaluate_policy counts an episode at a done that carries Monitor's "episode" (or at any done without Monitor)
         if locals_["done"] and ("episode" in info or not locals_.get("is_monitor_wrapped", False)):
             self._episode_costs.append(float(self._running_cost[idx]))
@@ -232,7 +233,7 @@ class VecCostReporter(VecEnvWrapper):
         obs, rewards, dones, infos = self.venv.step_wait()
         costs = np.array([float(info.get(COST_KEY, 0.0)) for info in infos])
         self._cost += costs
-        self._violations += costs > 0
+        self._violations += np.array([costly_steps(info) for info in infos])
         for idx in np.flatnonzero(dones):
             self.episode_costs.append(float(self._cost[idx]))
             self.episode_violations.append(int(self._violations[idx]))

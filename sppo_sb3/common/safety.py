@@ -21,8 +21,8 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from sppo_sb3.common.costs import costs_from_infos
-from sppo_sb3.common.keys import EPISODE_COST_ESTIMATE_LOG_KEY, INTERVENED_KEY, SAFETY_LOG_PREFIX
+from sppo_sb3.common.costs import costly_steps, costs_from_infos, intervention_count
+from sppo_sb3.common.keys import ENV_STEPS_KEY, EPISODE_COST_ESTIMATE_LOG_KEY, SAFETY_LOG_PREFIX
 
 #: the final summary also gives the mean return of this many last episodes: where a short run has got to
 FINAL_EPISODES = 5
@@ -61,17 +61,28 @@ class SafetyMetrics:
         if n_envs != self.n_envs:
             self.restart_episodes(n_envs)
 
-    def update(self, rewards: np.ndarray, costs: np.ndarray, dones: np.ndarray, intervened: np.ndarray | None = None) -> None:
+    def update(
+        self,
+        rewards: np.ndarray,
+        costs: np.ndarray,
+        dones: np.ndarray,
+        intervened: np.ndarray | None = None,
+        violations: np.ndarray | None = None,
+        env_steps: np.ndarray | None = None,
+    ) -> None:
         """Feed one VecEnv step.
 
         :param rewards: ``(n_envs,)`` rewards of the step.
-        :param costs: ``(n_envs,)`` violation indicators ``info["cost"]``.
+        :param costs: ``(n_envs,)`` violation indicators ``info["cost"]`` (under an action repeat, their sums).
         :param dones: ``(n_envs,)`` episode ends (termination or truncation).
-        :param intervened: ``(n_envs,)`` whether the shield replaced the proposed action.
+        :param intervened: ``(n_envs,)`` whether the shield replaced the proposed action, or on how many env steps
+            (under an action repeat).
+        :param violations: ``(n_envs,)`` env steps with a cost (``None``: ``costs > 0``, one env step per VecEnv step).
+        :param env_steps: ``(n_envs,)`` env steps the VecEnv step ran (``None``: one each).
         """
-        violated = np.asarray(costs) > 0
-        shielded = np.zeros(self.n_envs, dtype=bool) if intervened is None else np.asarray(intervened, dtype=bool)
-        self.steps += self.n_envs
+        violated = (np.asarray(costs) > 0).astype(np.int64) if violations is None else np.asarray(violations, np.int64)
+        shielded = np.zeros(self.n_envs, dtype=np.int64) if intervened is None else np.asarray(intervened, np.int64)
+        self.steps += self.n_envs if env_steps is None else int(np.sum(env_steps))
         self.violations += int(violated.sum())
         self.interventions += int(shielded.sum())
         self._ep_return += rewards
@@ -96,10 +107,12 @@ class SafetyMetrics:
         :return: the costs read from the infos.
         """
         costs = costs_from_infos(infos, required)
-        intervened_infos = np.array([bool(info.get(INTERVENED_KEY, False)) for info in infos])
+        counts = np.array([intervention_count(info) for info in infos], dtype=np.int64)
         if intervened is not None:
-            intervened_infos |= np.asarray(intervened, dtype=bool)
-        self.update(np.asarray(rewards, dtype=np.float64), costs, np.asarray(dones, dtype=bool), intervened_infos)
+            counts = np.maximum(counts, np.asarray(intervened, dtype=np.int64))
+        violations = np.array([costly_steps(info) for info in infos])
+        env_steps = np.array([int(info.get(ENV_STEPS_KEY, 1)) for info in infos])
+        self.update(np.asarray(rewards, dtype=np.float64), costs, np.asarray(dones, dtype=bool), counts, violations, env_steps)
         return costs
 
     def _close_episode(self, env_idx: int) -> None:

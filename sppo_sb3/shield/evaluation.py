@@ -4,7 +4,7 @@ The paper bounds the safety of the learned policy deployed *without* the shield 
 min{β + η, 2γ} / (1 - γ) + ε``). :func:`evaluate_deployment` measures both deployments of any algorithm of the
 package the same way: the policy's own actions (``predict`` with the algorithm's own shield turned off), executed
 either as they are (``shielded=False``) or through :class:`~sppo_sb3.shield.ShieldWrapper` with the model's rule
-(``shielded=True``).
+(``shielded=True``), each action held for as many env steps as in training (:func:`deployment_action_repeat`).
 """
 
 from __future__ import annotations
@@ -19,7 +19,9 @@ import numpy as np
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY
+from sppo_sb3.common.action_repeat import ActionRepeat
+from sppo_sb3.common.costs import costly_steps, intervention_count
+from sppo_sb3.common.keys import INTERVENED_KEY
 from sppo_sb3.shield.base import ShieldingRule
 from sppo_sb3.shield.wrapper import ShieldWrapper
 
@@ -50,15 +52,29 @@ def deployment_rule(model: BaseAlgorithm) -> ShieldingRule | None:
     return rule
 
 
+def deployment_action_repeat(model: BaseAlgorithm) -> int:
+    """How many env steps each of a model's actions was held for in training: the ``action_repeat`` of a
+    :class:`ShieldWrapper` or the ``repeat`` of an :class:`~sppo_sb3.common.action_repeat.ActionRepeat` around its
+    training envs, else 1 (also where the model has no env)."""
+    venv = model.get_env()
+    if venv is not None:
+        for wrapper, attribute in ((ShieldWrapper, "action_repeat"), (ActionRepeat, "repeat")):
+            if venv.env_is_wrapped(wrapper, indices=[0])[0]:
+                return int(venv.get_attr(attribute, indices=[0])[0])
+    return 1
+
+
 @dataclass
 class Episode:
     """One deployed episode.
 
     :param reward: its return.
-    :param length: its steps.
+    :param length: its steps (the policy's: one per action, however many env steps each was held for).
     :param terminated: whether it ended by termination (not by truncation).
-    :param violations: its steps with a positive cost.
+    :param violations: its env steps with a positive cost.
     :param intervention_steps: the steps (1-based) at which a shield overrode the action.
+    :param interventions: its env steps at which a shield overrode the action (more than ``intervention_steps`` where
+        a held action was overridden on several of its env steps).
     """
 
     reward: float
@@ -66,6 +82,7 @@ class Episode:
     terminated: bool
     violations: int
     intervention_steps: list[int]
+    interventions: int = 0
 
 
 def run_episode(
@@ -84,7 +101,7 @@ def run_episode(
     :param vec_normalize: the ``VecNormalize`` the model was trained under (see :func:`evaluate_deployment`).
     """
     obs, _ = env.reset(seed=seed)
-    reward, steps, violations, intervention_steps = 0.0, 0, 0, []
+    reward, steps, violations, intervention_steps, interventions = 0.0, 0, 0, [], 0
     state: Any = None
     done, terminated, start = False, False, np.array([True])
     with own_shield_off(model):
@@ -94,11 +111,12 @@ def run_episode(
             obs, step_reward, terminated, truncated, info = env.step(action)
             start, steps = np.array([False]), steps + 1
             reward += float(step_reward)
-            violations += int(float(info.get(COST_KEY, 0.0)) > 0)
+            violations += costly_steps(info)
+            interventions += intervention_count(info)
             if info.get(INTERVENED_KEY, False):
                 intervention_steps.append(steps)
             done = terminated or truncated
-    return Episode(reward, steps, bool(terminated), violations, intervention_steps)
+    return Episode(reward, steps, bool(terminated), violations, intervention_steps, interventions)
 
 
 def evaluate_deployment(
@@ -123,15 +141,17 @@ def evaluate_deployment(
     :param vec_normalize: the ``VecNormalize`` the model was trained under: the policy sees the observations
         normalised with its statistics, the shield the raw ones; ``None``: the observations go to ``predict`` as they
         are.
-    :return: mean return, mean violations per episode, safe-episode rate (% of episodes without a violation) and
-        mean shield interventions per episode.
+    :return: mean return, mean violations (env steps with a cost) per episode, safe-episode rate (% of episodes
+        without a violation) and mean shield interventions (env steps) per episode.
     """
     if n_eval_episodes < 1:
         raise ValueError(f"n_eval_episodes must be >= 1, got {n_eval_episodes}.")
     env = make_env()
-    rule = deployment_rule(model)
+    rule, repeat = deployment_rule(model), deployment_action_repeat(model)
     if shielded and rule is not None:
-        env = ShieldWrapper(env, rule)
+        env = ShieldWrapper(env, rule, action_repeat=repeat)
+    elif repeat > 1:
+        env = ActionRepeat(env, repeat)
     episodes = [
         run_episode(model, env, seed if episode == 0 else None, deterministic, vec_normalize)
         for episode in range(n_eval_episodes)
@@ -142,5 +162,5 @@ def evaluate_deployment(
         "mean_reward": float(np.mean([episode.reward for episode in episodes])),
         "mean_violations": float(np.mean(violations)),
         "safe_episode_rate": 100.0 * float(np.mean(violations == 0)),
-        "mean_interventions": float(np.mean([len(episode.intervention_steps) for episode in episodes])),
+        "mean_interventions": float(np.mean([episode.interventions for episode in episodes])),
     }

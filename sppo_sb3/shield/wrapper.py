@@ -7,12 +7,14 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 
+from sppo_sb3.common.action_repeat import HeldSteps, check_action_repeat, check_held_steps_are_shielded
 from sppo_sb3.common.keys import (
     ABSORBED_KEY,
     ADVANTAGE_KEY,
     ENV_REWARD_KEY,
     EXECUTED_ACTION_KEY,
     INTERVENED_KEY,
+    INTERVENTIONS_KEY,
     PROPOSED_ACTION_KEY,
 )
 from sppo_sb3.shield.base import ShieldDecision, ShieldingRule
@@ -55,7 +57,14 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         ``env_wrapper: [{sppo_sb3.shield.ShieldWrapper: {rule: auto}}]``.
     :param on_intervention: ``"continue"``, ``"terminate"`` or ``"takeover"`` (see above).
     :param penalty: what an intervention costs the learner, ``>= 0``: subtracted from the step's reward under
-        ``"continue"``, the absorbing step's reward ``R̃ = -penalty`` under ``"terminate"``.
+        ``"continue"`` (once per intervened env step), the absorbing step's reward ``R̃ = -penalty`` under
+        ``"terminate"``.
+    :param action_repeat: env steps each action is held for (:mod:`~sppo_sb3.common.action_repeat`): the learner acts
+        every ``action_repeat`` env steps, and the shield checks the held action on *every* env step, executing the
+        backup's action on those it rejects. The learner's step then carries the held action's summed reward and cost,
+        ``info["env_steps"]``, ``info["costly_steps"]`` and ``info["shield_interventions"]`` (env steps intervened);
+        ``info["shield_intervened"]`` is whether any was, ``info["executed_action"]`` and ``info["shield_advantage"]``
+        are the first env step's. Under ``"terminate"`` the held action ends at its first intervention.
     """
 
     def __init__(
@@ -64,11 +73,14 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         rule: ShieldingRule | str,
         on_intervention: OnIntervention = "continue",
         penalty: float = 0.0,
+        action_repeat: int = 1,
     ) -> None:
         super().__init__(env)
         if not isinstance(env.action_space, gym.spaces.Box):
             raise TypeError(f"ShieldWrapper needs a Box action space, got {env.action_space}.")
         check_on_intervention(on_intervention, WRAPPER_ON_INTERVENTION, "ShieldWrapper")
+        check_action_repeat(action_repeat)
+        check_held_steps_are_shielded(env, "ShieldWrapper")
         check_penalty(penalty, "ShieldWrapper", "The absorbing step's reward is R̃ = -penalty: for R̃ = -1 pass penalty=1.0.")
         if on_intervention == "takeover" and penalty != 0.0:
             raise ValueError(
@@ -81,6 +93,7 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         self.rule = resolved
         self.on_intervention = on_intervention
         self.penalty = penalty
+        self.action_repeat = action_repeat
         self._box: gym.spaces.Box = env.action_space
         self._obs: np.ndarray | None = None
         self._checked = False
@@ -96,27 +109,47 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         return obs, info
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+        """Shield the proposal on each of the ``action_repeat`` env steps it is held for, and execute what passes."""
         if self._obs is None:
             raise RuntimeError("ShieldWrapper.step called before reset().")
         proposed = np.clip(np.asarray(action, dtype=np.float64), self._box.low, self._box.high)
+        held, interventions = HeldSteps(), 0
+        first: tuple[np.ndarray, float] | None = None  # the first env step's executed action and Ā
+        for _ in range(self.action_repeat):
+            obs, reward, terminated, truncated, info, decision = self._shielded_env_step(proposed)
+            held.add(reward, info)
+            intervened = bool(decision.intervened[0])
+            interventions += intervened
+            first = first or (info[EXECUTED_ACTION_KEY], float(decision.advantage[0]))
+            if terminated or truncated or (intervened and self.on_intervention == "terminate"):
+                break
+        if self.action_repeat > 1:  # the held action's totals, and what the shield did on each of its env steps
+            info = held.write(info)
+            info[INTERVENTIONS_KEY] = interventions
+            reward = held.reward
+        assert first is not None  # action_repeat >= 1
+        info[INTERVENED_KEY] = interventions > 0
+        info[PROPOSED_ACTION_KEY] = proposed
+        info[EXECUTED_ACTION_KEY], info[ADVANTAGE_KEY] = first
+        info[ABSORBED_KEY] = interventions > 0 and self.on_intervention == "terminate"
+        if info[ABSORBED_KEY]:
+            info[ENV_REWARD_KEY] = reward
+            return obs, -self.penalty, True, False, info
+        if interventions and self.on_intervention == "continue" and self.penalty:
+            info[ENV_REWARD_KEY] = reward
+            reward = float(reward) - self.penalty * interventions
+        return obs, reward, terminated, truncated, info
+
+    def _shielded_env_step(self, proposed: np.ndarray) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any], Any]:
+        """One env step of the held proposal, shielded (eq. 12) at the current state: the step and the decision."""
         decision = self._decide(proposed)
         safe = decision.actions[0].reshape(self._box.shape).astype(self._box.dtype)  # the rule's actions are flat
         obs, reward, terminated, truncated, info = self.env.step(safe)
         intervened = bool(decision.intervened[0])
         self._backup_in_control = intervened and self.on_intervention == "takeover" and not (terminated or truncated)
-        info[INTERVENED_KEY] = intervened
-        info[PROPOSED_ACTION_KEY] = proposed
         info[EXECUTED_ACTION_KEY] = safe
-        info[ADVANTAGE_KEY] = float(decision.advantage[0])
-        info[ABSORBED_KEY] = intervened and self.on_intervention == "terminate"
         self._obs = np.asarray(obs)
-        if info[ABSORBED_KEY]:
-            info[ENV_REWARD_KEY] = reward
-            return obs, -self.penalty, True, False, info
-        if intervened and self.on_intervention == "continue" and self.penalty:
-            info[ENV_REWARD_KEY] = reward
-            reward = float(reward) - self.penalty
-        return obs, reward, terminated, truncated, info
+        return obs, reward, terminated, truncated, info, decision
 
     def _decide(self, proposed: np.ndarray) -> ShieldDecision:
         """The rule's shield on the proposal; once the backup has taken over (``"takeover"``), the backup action."""

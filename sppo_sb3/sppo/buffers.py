@@ -23,6 +23,7 @@ from gymnasium import spaces
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.vec_env import VecNormalize
 
+from sppo_sb3.common.costs import intervention_count
 from sppo_sb3.common.keys import COST_KEY, INTERVENED_KEY, PROPOSED_ACTION_KEY, SHAPED_COST_KEY
 from sppo_sb3.shield.intervention import OnIntervention, check_on_intervention, check_penalty
 from sppo_sb3.shield.learned.base import CostTransitions
@@ -56,8 +57,9 @@ class SequenceSamples(NamedTuple):
 class ShieldedReplayBuffer(ReplayBuffer):
     """Replay buffer of real transitions ``B`` with the absorbing relabel ``B̃`` (Section III-D).
 
-    Reads the step's ``info["cost"]``, ``info["shaped_cost"]`` (NaN where absent), ``info["shield_intervened"]`` and
-    ``info["proposed_action"]`` (env units) in :meth:`add`. :meth:`sample` draws single transitions of ``B``;
+    Reads the step's ``info["cost"]``, ``info["shaped_cost"]`` (NaN where absent), ``info["shield_intervened"]``,
+    ``info["shield_interventions"]`` (on how many env steps, under an action repeat) and ``info["proposed_action"]``
+    (env units) in :meth:`add`. :meth:`sample` draws single transitions of ``B``;
     :meth:`sample_sequences` draws sequences of ``B̃`` for TOPO; :meth:`sample_cost_transitions` draws the real
     transitions a learned shielding rule is fitted on.
 
@@ -97,6 +99,7 @@ class ShieldedReplayBuffer(ReplayBuffer):
         self.costs = np.zeros((self.buffer_size, self.n_envs), dtype=np.float32)
         self.shaped_costs = np.full((self.buffer_size, self.n_envs), np.nan, dtype=np.float32)
         self.intervened = np.zeros((self.buffer_size, self.n_envs), dtype=bool)
+        self.interventions = np.zeros((self.buffer_size, self.n_envs), dtype=np.int16)  # env steps, under a repeat
         self.relabel_valid = np.zeros((self.buffer_size, self.n_envs), dtype=bool)
         self._absorbed = np.zeros(self.n_envs, dtype=bool)  # M̃ has reached s† in the env's current episode
         self._low, self._high = action_space.low, action_space.high
@@ -118,6 +121,7 @@ class ShieldedReplayBuffer(ReplayBuffer):
         self.costs[pos] = [float(info.get(COST_KEY, 0.0)) for info in infos]
         self.shaped_costs[pos] = [float(info.get(SHAPED_COST_KEY, np.nan)) for info in infos]
         self.intervened[pos] = intervened
+        self.interventions[pos] = [intervention_count(info) for info in infos]
         self.proposed_actions[pos] = proposed.reshape(self.n_envs, self.action_dim)
         self.relabel_valid[pos] = ~self._absorbed  # the ã rule: M̃ data until (and including) T
         if self.on_intervention == "terminate":

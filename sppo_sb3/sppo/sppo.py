@@ -21,7 +21,9 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Rollout
 from stable_baselines3.common.utils import should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv
 
-from sppo_sb3.common.keys import INTERVENED_KEY, N_UPDATES_LOG_KEY, PROPOSED_ACTION_KEY
+from sppo_sb3.common.action_repeat import check_held_steps_are_shielded
+from sppo_sb3.common.costs import intervention_count
+from sppo_sb3.common.keys import INTERVENED_KEY, INTERVENTIONS_KEY, N_UPDATES_LOG_KEY, PROPOSED_ACTION_KEY
 from sppo_sb3.common.safety import SafetyTrackingMixin
 from sppo_sb3.shield.base import ShieldingRule
 from sppo_sb3.shield.intervention import OnIntervention, check_on_intervention, check_penalty
@@ -284,6 +286,8 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         self._convert_train_freq()
         if self.shield_rule is None:
             self.shield_rule = resolve_shielding_rule(self.shield, self.env, required=False)
+        if self.shield_rule is not None and self.env is not None:
+            check_held_steps_are_shielded(self.env, "SPPO's shield")
         learnable = isinstance(self.shield_rule, RefinableRule)
         if self.refine_shield is True and not learnable:
             raise ValueError(
@@ -445,7 +449,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             assert isinstance(new_obs, np.ndarray)  # flat Box observations (check_spaces)
             check_finite(new_obs, rewards)
             for info, shielded, wanted in zip(infos, intervened, candidates[:, 0]):
-                info[INTERVENED_KEY], info[PROPOSED_ACTION_KEY] = bool(shielded), wanted
+                record_own_intervention(info, bool(shielded), wanted)
             self.num_timesteps += env.num_envs
             num_collected_steps += 1
             callback.update_locals(locals())
@@ -606,6 +610,22 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         """Save as SB3 does, with training's warm start, so that a resumed run plans exactly as the saved one would."""
         self.planner_warm_start = self._plan_mean.cpu().numpy()
         super().save(path, exclude, include)
+
+
+def record_own_intervention(info: dict[str, Any], intervened: bool, proposal: np.ndarray) -> None:
+    """Write SPPO's own shield decision into a step's info, beside an env-level shield's.
+
+    SPPO shields the first env step of its action; where the env holds it for more (``ShieldWrapper(...,
+    action_repeat=k)``), the wrapper has checked the later ones and counted its interventions in the info. The step is
+    an intervention if either replaced the action, and the count is the sum (the wrapper accepts what SPPO executed on
+    the first env step: an accepted proposal, or the backup's action).
+
+    :param info: the step's info, as the env returned it.
+    :param intervened: whether SPPO's own shield replaced its proposal.
+    :param proposal: the planner's proposal, in env units (what ``B̃`` relabels with).
+    """
+    count = int(intervened) + intervention_count(info)
+    info[INTERVENED_KEY], info[INTERVENTIONS_KEY], info[PROPOSED_ACTION_KEY] = count > 0, count, proposal
 
 
 def check_discount_source(planner_kwargs: dict[str, Any] | None, topo_kwargs: dict[str, Any] | None) -> None:

@@ -12,6 +12,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from tiny_hyperparams import TINY_SAILR, TINY_SPPO
 
 import sppo_sb3
+from sppo_sb3.common.action_repeat import ActionRepeat
+from sppo_sb3.common.keys import INTERVENTIONS_KEY
 from sppo_sb3.envs.navigation import SafetyNavigationEnv
 from sppo_sb3.envs.navigation.objects import Gremlins
 from sppo_sb3.envs.navigation.tasks.button import ButtonTask
@@ -374,6 +376,27 @@ def test_random_proposals_stay_safe_on_circle_walls() -> None:
     rng = np.random.default_rng(0)
     costs = sum(shielded.step(rng.uniform(-1, 1, 2))[4]["cost"] for _ in range(300))
     assert costs == 0
+
+
+@pytest.mark.parametrize("shielded", [True, False])
+def test_a_proposal_held_into_a_hazard_costs_nothing_behind_the_shield(shielded: bool) -> None:
+    """Held for 5 env steps (0.1 s, the field's time scale), a proposal straight at the nearest hazard never reaches
+    it: the shield checks every held env step. Unshielded, the same held proposals pay (so the test can fail)."""
+    env = gym.make("sppo_sb3/SafetyPointGoal1-v0")
+    inner = env.unwrapped
+    assert isinstance(inner, SafetyNavigationEnv)
+    held = ShieldWrapper(env, "auto", action_repeat=5) if shielded else ActionRepeat(env, 5)
+    held.reset(seed=1)
+    costs = interventions = 0
+    for _ in range(60):
+        _, _, terminated, truncated, info = held.step(toward_nearest(inner, "hazard"))
+        costs += info["cost"]
+        interventions += info.get(INTERVENTIONS_KEY, 0)
+        assert not (terminated or truncated)
+    if shielded:
+        assert costs == 0 and interventions > 0
+    else:
+        assert costs > 0
 
 
 def test_unshielded_adversary_pays_so_the_test_above_can_fail() -> None:

@@ -18,8 +18,9 @@ from stable_baselines3.common.logger import KVWriter, Logger
 from tiny_hyperparams import TINY_SPPO
 
 from sppo_sb3 import SPPO
+from sppo_sb3.common.action_repeat import ActionRepeat
 from sppo_sb3.common.costs import MissingCostError
-from sppo_sb3.shield import PointCircleShieldingRule, ShieldingRule
+from sppo_sb3.shield import PointCircleShieldingRule, ShieldingRule, ShieldWrapper
 from sppo_sb3.sppo.buffers import ShieldedReplayBuffer
 from sppo_sb3.sppo.optim import init_optimizer_state
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, topo_update
@@ -369,3 +370,25 @@ def test_the_shield_executes_the_planners_first_accepted_candidate() -> None:
     plain = tiny_sppo(shield=PositiveFirstCoordinateRule(), learning_starts=20).learn(300)
     assert plain.alternatives_executed == 0
     assert ranked.safety_metrics.interventions < plain.safety_metrics.interventions
+
+
+# --------------------------------------------------------------------------------------------- the held action
+def test_behind_a_held_action_shield_sppo_counts_env_steps_and_relabels_the_wrappers_interventions() -> None:
+    """``ShieldWrapper(..., action_repeat=5)``: SPPO acts every 5 env steps, the wrapper checks each of them, and SPPO's
+    metrics and relabel see the interventions the wrapper took on the held steps."""
+    env = ShieldWrapper(gym.make("SafePointCircle-v0"), "auto", action_repeat=5)
+    model = SPPO("TOLDPolicy", env, **{**TINY_SPPO, "learning_starts": 20, "seed": 0}).learn(200)
+    metrics, buffer = model.safety_metrics, model.replay_buffer
+    n = buffer.pos
+    assert model.num_timesteps == 200 and metrics.steps == 1000  # agent steps, and the env steps they held
+    assert metrics.violations == 0 and metrics.interventions > 0
+    assert buffer.interventions[:n].sum() == metrics.interventions
+    np.testing.assert_array_equal(buffer.intervened[:n], buffer.interventions[:n] > 0)
+    assert buffer.interventions[:n].max() > 1  # several held env steps of one agent step were intervened
+
+
+def test_a_shielded_sppo_refuses_actions_held_where_its_shield_does_not_see_them() -> None:
+    held = ActionRepeat(gym.make("SafePointCircle-v0"), 5)
+    with pytest.raises(ValueError, match=r"only the first env step of each action that ActionRepeat holds"):
+        SPPO("TOLDPolicy", held, **TINY_SPPO)
+    assert SPPO("TOLDPolicy", held, shield=None, **TINY_SPPO).shield_rule is None  # unshielded, on purpose: allowed
