@@ -55,16 +55,20 @@ def check_on_intervention(value: str, supported: tuple[OnIntervention, ...], own
     )
 
 
-def check_penalty(penalty: float, owner: str, hint: str = "") -> None:
+#: what a penalty means to SPPO and ShieldWrapper, in the message of :func:`check_penalty`
+REWARD_PENALTY_HINT = "The absorbing step's reward is R̃ = -penalty (eq. 7): for R̃ = -1 pass penalty=1.0."
+
+
+def check_penalty(penalty: float, owner: str, hint: str = REWARD_PENALTY_HINT) -> None:
     """Reject a negative penalty: the penalty is the non-negative amount an intervention costs the learner.
 
     :param penalty: the given penalty.
     :param owner: who takes it, for the message.
-    :param hint: what the penalty means to ``owner``, appended to the message.
+    :param hint: what the penalty means to ``owner``, appended to the message (default: the reward ``R̃ = -penalty``).
     :raises ValueError: ``penalty < 0`` (or NaN).
     """
     if not penalty >= 0.0:
         raise ValueError(
             f"{owner}'s penalty is what an intervention costs the learner, a number >= 0 (see "
-            f"sppo_sb3.shield.intervention), got {penalty}.{' ' + hint if hint else ''}"
+            f"sppo_sb3.shield.intervention), got {penalty}. {hint}"
         )

@@ -81,7 +81,7 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         check_on_intervention(on_intervention, WRAPPER_ON_INTERVENTION, "ShieldWrapper")
         check_action_repeat(action_repeat)
         check_held_steps_are_shielded(env, "ShieldWrapper")
-        check_penalty(penalty, "ShieldWrapper", "The absorbing step's reward is R̃ = -penalty: for R̃ = -1 pass penalty=1.0.")
+        check_penalty(penalty, "ShieldWrapper")
         if on_intervention == "takeover" and penalty != 0.0:
             raise ValueError(
                 "ShieldWrapper(on_intervention='takeover') reports the executed steps as they are and leaves the relabel to "

@@ -91,7 +91,7 @@ class ShieldedReplayBuffer(ReplayBuffer):
         if optimize_memory_usage:
             raise ValueError("ShieldedReplayBuffer keeps next observations explicitly: use optimize_memory_usage=False.")
         check_on_intervention(on_intervention, SPPO_ON_INTERVENTION, "SPPO's replay buffer")
-        check_penalty(penalty, "SPPO's replay buffer", "The absorbing step's reward is R̃ = -penalty.")
+        check_penalty(penalty, "SPPO's replay buffer")
         super().__init__(buffer_size, observation_space, action_space, device, n_envs, False, handle_timeout_termination)
         assert isinstance(action_space, spaces.Box)
         self.on_intervention, self.penalty = on_intervention, penalty

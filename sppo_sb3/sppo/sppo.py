@@ -209,7 +209,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             raise ValueError(f"Choose TOLD's variant with SPPO's told argument (told={given!r}), not policy_kwargs.")
         check_discount_source(planner_kwargs, topo_kwargs)
         check_on_intervention(on_intervention, SPPO_ON_INTERVENTION, "SPPO")
-        check_penalty(penalty, "SPPO", "Eq. 7's absorbing reward is R̃ = -penalty: for R̃ = -1 pass penalty=1.0.")
+        check_penalty(penalty, "SPPO")
         if gamma == "auto" and env is not None:  # the episode length is the env's: make it as SB3 would, once
             env = self._wrap_env(maybe_make_env(env, verbose), verbose)
         named = named_sizes(sizes)
