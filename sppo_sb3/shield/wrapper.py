@@ -11,6 +11,7 @@ from sppo_sb3.common.action_repeat import HeldSteps, check_action_repeat, check_
 from sppo_sb3.common.keys import (
     ABSORBED_KEY,
     ADVANTAGE_KEY,
+    COST_KEY,
     ENV_REWARD_KEY,
     EXECUTED_ACTION_KEY,
     INTERVENED_KEY,
@@ -19,6 +20,7 @@ from sppo_sb3.common.keys import (
 )
 from sppo_sb3.shield.base import ShieldDecision, ShieldingRule
 from sppo_sb3.shield.intervention import OnIntervention, check_on_intervention, check_penalty
+from sppo_sb3.shield.records import MAX_RECORDS, CostlyEpisode, EpisodeLog, costly_episode, reset_randomness, simulator_state
 from sppo_sb3.shield.registry import resolve_shielding_rule
 
 #: the values of ``on_intervention`` a wrapper can implement through the gym API (:mod:`~sppo_sb3.shield.intervention`)
@@ -49,6 +51,10 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
     (what the env executed), ``info["shield_advantage"]`` (``Ā(s, a)``) and ``info["shield_absorbed"]`` (the step
     was turned into the absorbing terminal). The rule is probed once, at the first ``reset``
     (:meth:`ShieldingRule.check_action_space`).
+
+    Every episode that pays cost is kept as a replayable record (:mod:`~sppo_sb3.shield.records`), the first
+    :data:`~sppo_sb3.shield.records.MAX_RECORDS` of them: :attr:`costly_episodes`. The train CLI writes them to the run
+    folder (``costly_episodes/``), and ``scripts/replay_costly.py`` replays one closed loop on any machine.
 
     :param env: the env to protect; its observations are what the rule reads.
     :param rule: the shielding rule, or a registered rule's name: ``"auto"`` (the rule of the env's own id, built from
@@ -98,9 +104,29 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         self._obs: np.ndarray | None = None
         self._checked = False
         self._backup_in_control = False
+        self._rule_name = rule if isinstance(rule, str) else None
+        self._log: EpisodeLog | None = None
+        self._episodes = 0
+        self._records: list[CostlyEpisode] = []
+
+    @property
+    def costly_episodes(self) -> list[CostlyEpisode]:
+        """The records of the episodes that paid cost so far (the one running too, if it has)."""
+        running = self._record_of_running_episode()
+        return self._records + ([running] if running is not None else [])
+
+    def _record_of_running_episode(self) -> CostlyEpisode | None:
+        if self._log is None or not self._log.costly_steps or self._obs is None or len(self._records) >= MAX_RECORDS:
+            return None
+        return costly_episode(self.env, self.rule, self._rule_name, self._episodes - 1, self._log, self._obs)
 
     def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
+        finished = self._record_of_running_episode()
+        if finished is not None:
+            self._records.append(finished)
+        randomness = reset_randomness(self.env, kwargs.get("seed"))
         obs, info = self.env.reset(**kwargs)
+        self._log, self._episodes = EpisodeLog(randomness), self._episodes + 1
         self._obs = np.asarray(obs)
         self._backup_in_control = False
         if not self._checked:
@@ -144,8 +170,11 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         """One env step of the held proposal, shielded (eq. 12) at the current state: the step and the decision."""
         decision = self._decide(proposed)
         safe = decision.actions[0].reshape(self._box.shape).astype(self._box.dtype)  # the rule's actions are flat
+        state = simulator_state(self.env)
         obs, reward, terminated, truncated, info = self.env.step(safe)
         intervened = bool(decision.intervened[0])
+        assert self._log is not None  # reset() came first
+        self._log.add(state, proposed, safe, intervened, float(decision.advantage[0]), float(info.get(COST_KEY, 0.0)))
         self._backup_in_control = intervened and self.on_intervention == "takeover" and not (terminated or truncated)
         info[EXECUTED_ACTION_KEY] = safe
         self._obs = np.asarray(obs)

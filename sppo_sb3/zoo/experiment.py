@@ -145,10 +145,26 @@ class SafeExperimentManager(ExperimentManager):
                 )
                 summary = {**summary, "eval_mean_reward": callback.last_mean_reward}
                 summary["eval_mean_cost"] = callback.last_mean_cost
+        self.save_costly_episodes(model)
         print(SAFETY_LEGEND)
         Path(self.save_path).mkdir(parents=True, exist_ok=True)
         with open(os.path.join(self.save_path, "safety_summary.json"), "w") as file:
             json.dump({"num_timesteps": int(model.num_timesteps), **summary}, file, indent=2)
+
+    def save_costly_episodes(self, model: BaseAlgorithm) -> None:
+        """Write the replayable record of every training episode that paid cost behind a ``ShieldWrapper``
+        (:mod:`sppo_sb3.shield.records`) to ``costly_episodes/`` in the run folder, and say how to replay them."""
+        env = model.get_env()
+        if env is None or not env.has_attr("costly_episodes"):
+            return
+        folder = Path(self.save_path) / "costly_episodes"
+        saved = [
+            record.save(folder / f"env_{index}_episode_{record.episode}.json")
+            for index, records in enumerate(env.get_attr("costly_episodes"))
+            for record in records
+        ]
+        if saved:
+            print(f"{len(saved)} costly episodes recorded for replay in {folder}: python scripts/replay_costly.py {saved[0]}")
 
     def evaluate_deployments(self, model: BaseAlgorithm) -> dict[str, dict[str, float]]:
         """Deployment safety (Corollary 1): the learned policy with and without the shield, printed side by side.

@@ -407,3 +407,34 @@ def test_monitor_records_the_episodes_an_absorbing_shield_ends(tmp_path: Path) -
             break
     assert infos[0]["shield_absorbed"] and dones[0] and "episode" in infos[0]
     assert len(pd.read_csv(next(tmp_path.glob("*monitor.csv")), skiprows=1)) == 1
+
+
+def test_train_cli_writes_the_records_of_costly_episodes_to_the_run_folder(tmp_path: Path, capsys) -> None:
+    """Every episode that paid cost behind a ShieldWrapper lands in ``costly_episodes/`` of the run folder, replayable."""
+    from types import SimpleNamespace
+
+    import gymnasium as gym
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from sppo_sb3.shield.records import CostlyEpisode
+    from sppo_sb3.zoo.experiment import SafeExperimentManager
+
+    class AcceptsAll(ShieldingRule):
+        gamma = 0.99
+
+        def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+            return np.zeros(len(obs))
+
+        def backup_action(self, obs: np.ndarray) -> np.ndarray:
+            return np.zeros((len(obs), 2))
+
+    env = DummyVecEnv([lambda: ShieldWrapper(gym.make(ENV), AcceptsAll())])
+    env.seed(3)
+    env.reset()
+    for _ in range(60):  # full thrust, nothing shielded: into the wall, the episode ends and another starts
+        env.step(np.array([[1.0, 0.3]], dtype=np.float32))
+    manager = SimpleNamespace(save_path=str(tmp_path))
+    SafeExperimentManager.save_costly_episodes(manager, SimpleNamespace(get_env=lambda: env))  # type: ignore[arg-type]
+    saved = sorted((tmp_path / "costly_episodes").glob("*.json"))
+    assert saved and CostlyEpisode.load(saved[0]).costly_steps
+    assert "replay_costly.py" in capsys.readouterr().out

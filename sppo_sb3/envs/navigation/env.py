@@ -281,6 +281,14 @@ class SafetyNavigationEnv(gym.Env[np.ndarray, np.ndarray], EzPickle):
             self.task.state(),
         )
 
+    def rng_state(self) -> tuple[list[int], int] | None:
+        """The layout's random stream as it is now, its 624 keys and position (``None`` before the first reset): what
+        :meth:`set_rng_state` restores."""
+        if self._rng is None:
+            return None
+        _, keys, position, _, _ = self._rng.get_state()
+        return [int(key) for key in keys], int(position)
+
     def set_rng_state(self, keys: np.ndarray, position: int) -> None:
         """Set the layout's random stream (a Mersenne Twister, as Safety-Gymnasium's ``RandomState``) to a recorded
         state: its 624 keys and position."""
