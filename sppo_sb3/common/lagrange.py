@@ -1,4 +1,5 @@
-"""The Lagrange multiplier of the primal-dual baselines (PDO, CSC and SACLag), defined once.
+"""The Lagrange multiplier of the primal-dual baselines (PDO, CSC and SACLag), defined once, and the PID multiplier
+SPPO prices its shield's interventions with.
 
 They solve the constrained problem of the paper's Section II-B (the CMDP ``max_π J_R(π)  s.t.  J_C(π) <= d``) on its
 Lagrangian ``L(π, λ) = J_R(π) - λ·(J_C(π) - d)``, ``λ >= 0``: a primal (policy) step on the advantage
@@ -11,6 +12,7 @@ with the penalty ``λ·Q_C``, also scaled by ``1 / (1 + λ)``.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -37,6 +39,40 @@ def lagrange_update(lagrange_multiplier: float, episode_cost: float, cost_limit:
     :return: the new ``λ``.
     """
     return max(0.0, lagrange_multiplier + lagrange_lr * (episode_cost - cost_limit))
+
+
+@dataclass
+class PIDLagrangian:
+    """A Lagrange multiplier ``λ >= 0`` that a PID controller moves to hold a measured rate at its target (Stooke,
+    Achiam & Abbeel 2020, "Responsive Safety in RL by PID Lagrangian Methods"): with the error ``e = rate - target``,
+    ``λ = max(0, k_p·e + k_i·I + k_d·Δe)`` and the integral ``I ← max(0, I + e)``. The integral alone is the dual
+    ascent of :func:`lagrange_update`; the proportional term answers at once, without the integral's overshoot.
+
+    :param target: the rate to hold (e.g. a share of steps).
+    :param kp: proportional gain ``k_p``.
+    :param ki: integral gain ``k_i``, per update.
+    :param kd: derivative gain ``k_d``.
+    """
+
+    target: float
+    kp: float = 1.0
+    ki: float = 0.01
+    kd: float = 0.0
+    integral: float = 0.0
+    last_error: float = 0.0
+    multiplier: float = 0.0
+
+    def __post_init__(self) -> None:
+        if min(self.target, self.kp, self.ki, self.kd) < 0:
+            raise ValueError(f"A PID Lagrangian needs a target and gains >= 0, got {self}.")
+
+    def update(self, rate: float) -> float:
+        """One step of the controller on the measured ``rate``; returns the new ``λ``."""
+        error = rate - self.target
+        self.integral = max(0.0, self.integral + error)
+        derivative, self.last_error = error - self.last_error, error
+        self.multiplier = max(0.0, self.kp * error + self.ki * self.integral + self.kd * derivative)
+        return self.multiplier
 
 
 def lagrangian_advantage(advantages: np.ndarray, cost_advantages: np.ndarray, lagrange_multiplier: float) -> np.ndarray:

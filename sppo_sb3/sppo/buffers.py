@@ -43,6 +43,8 @@ class SequenceSamples(NamedTuple):
     :param mask: ``(L, B)`` 1 where the step belongs to the sequence (not past an episode end or the write head).
     :param consistency_mask: ``(L, B)`` ``mask`` without the relabelled steps, whose next state did not follow their
         action (``s†`` of an absorbing relabel has no observation; under ``"continue"`` the backup led to ``s'``).
+    :param proposals: ``(L, B, A)`` the planner's proposals (scaled to [-1, 1]), what the shield judged.
+    :param intervened: ``(L, B)`` 1 where the shield rejected the proposal (the intervention head's label).
     """
 
     observations: th.Tensor
@@ -52,6 +54,8 @@ class SequenceSamples(NamedTuple):
     terminals: th.Tensor
     mask: th.Tensor
     consistency_mask: th.Tensor
+    proposals: th.Tensor | None = None
+    intervened: th.Tensor | None = None
 
 
 class ShieldedReplayBuffer(ReplayBuffer):
@@ -199,5 +203,7 @@ class ShieldedReplayBuffer(ReplayBuffer):
             terminals,
             mask,
             mask & ~relabelled,
+            self.proposed_actions[idx, envs],
+            self.intervened[idx, envs],
         )
         return SequenceSamples(*(self.to_torch(np.asarray(x, dtype=np.float32)) for x in data))

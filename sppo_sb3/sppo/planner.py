@@ -160,52 +160,83 @@ def draw_noise(
 
 
 def trajectory_return(
-    model: TOLD, z: th.Tensor, actions: th.Tensor, gamma: float, policy_std: float, terminal_noise: th.Tensor
+    model: TOLD,
+    z: th.Tensor,
+    actions: th.Tensor,
+    gamma: float,
+    policy_std: float,
+    terminal_noise: th.Tensor,
+    penalty: th.Tensor | None = None,
 ) -> th.Tensor:
     """``Φ = Σ_{t<H} γ^t c_t R(z_t, a_t) + γ^H c_H Q(z_H, π(z_H))`` (eq. 10) for a flat batch, with ``Q``
     :meth:`TOLD.min_q` (the min of the twin heads; the mean of the five for the ``"tdmpc2"`` TOLD).
 
     ``c_t`` is the probability that the imagined episode of ``M̃`` is still running at step ``t`` (the product of
     :meth:`TOLD.continuation` before ``t``): after a predicted absorbing step ``s†`` adds no reward and no value
-    (eq. 7). Without a termination head ``c_t = 1``, TD-MPC's return.
+    (eq. 7). Without a termination head ``c_t = 1``, TD-MPC's return. With an intervention head and a ``penalty``,
+    each step also pays ``penalty · P(I | z_t, a_t)``, its predicted intervention priced (not in the paper).
 
     :param z: ``(B, latent)`` start latents.
     :param actions: ``(H, B, A)`` action sequences.
     :param terminal_noise: ``(B, A)`` standard normal draws for the policy noise on ``π(z_H)``.
+    :param penalty: the price of an intervention (0-d tensor; None: none).
     :return: ``(B,)`` returns.
     """
     value = th.zeros(z.shape[0], device=z.device)
     alive = th.ones(z.shape[0], device=z.device)
     for t in range(actions.shape[0]):
-        z, alive = step_return(model, z, actions[t], alive, gamma**t, value)
+        z, alive = step_return(model, z, actions[t], alive, gamma**t, value, penalty)
     terminal = model.min_q(z, model.policy(z, policy_std, terminal_noise.to(z.dtype))).squeeze(-1)
     return value + gamma ** actions.shape[0] * alive * terminal
 
 
 def step_return(
-    model: TOLD, z: th.Tensor, action: th.Tensor, alive: th.Tensor, discount: float, value: th.Tensor
+    model: TOLD,
+    z: th.Tensor,
+    action: th.Tensor,
+    alive: th.Tensor,
+    discount: float,
+    value: th.Tensor,
+    penalty: th.Tensor | None = None,
 ) -> tuple[th.Tensor, th.Tensor]:
-    """One imagined step of eq. 10: adds ``discount · c_t · R(z_t, a_t)`` to ``value`` in place.
+    """One imagined step of eq. 10: adds ``discount · c_t · (R(z_t, a_t) - penalty · P(I | z_t, a_t))`` to ``value`` in
+    place (the second term only with an intervention head and a ``penalty``).
 
     :return: the next latent and ``c_(t+1) = c_t · (1 - P(termination))``.
     """
     next_z, reward = model.next(z, action)
-    value += discount * alive * reward.squeeze(-1).float()
+    reward = reward.squeeze(-1).float()
+    if penalty is not None and model.intervention is not None:
+        reward = reward - penalty * model.intervention_probability(z, action).float()
+    value += discount * alive * reward
     if model.termination is not None:
         alive = alive * model.continuation(z, action).float()
     return next_z, alive
 
 
 def blocked_returns(
-    model: TOLD, z: th.Tensor, actions: th.Tensor, terminal_noise: th.Tensor, cfg: MPPIConfig, gamma: float, block_rows: int
+    model: TOLD,
+    z: th.Tensor,
+    actions: th.Tensor,
+    terminal_noise: th.Tensor,
+    cfg: MPPIConfig,
+    gamma: float,
+    block_rows: int,
+    penalty: th.Tensor | None = None,
 ) -> th.Tensor:
     """Eq. 10 for ``(B, latent)`` starts and ``(H, B, A)`` actions, in row blocks whose activations stay in cache."""
     blocks = zip(z.split(block_rows), actions.split(block_rows, dim=1), terminal_noise.split(block_rows))
-    return th.cat([trajectory_return(model, zb, ab, gamma, cfg.policy_std, nb) for zb, ab, nb in blocks])
+    return th.cat([trajectory_return(model, zb, ab, gamma, cfg.policy_std, nb, penalty) for zb, ab, nb in blocks])
 
 
 def policy_rollout(
-    model: TOLD, z: th.Tensor, horizon: int, gamma: float, policy_std: float, noise: th.Tensor
+    model: TOLD,
+    z: th.Tensor,
+    horizon: int,
+    gamma: float,
+    policy_std: float,
+    noise: th.Tensor,
+    penalty: th.Tensor | None = None,
 ) -> tuple[th.Tensor, th.Tensor]:
     """Roll ``π`` through ``d`` (Alg. 2 line 5) and score it by eq. 10 in the same pass.
 
@@ -217,7 +248,7 @@ def policy_rollout(
     alive = th.ones(z.shape[0], device=z.device)
     for t in range(horizon):
         actions.append(model.policy(z, policy_std, noise[t]))
-        z, alive = step_return(model, z, actions[-1], alive, gamma**t, value)
+        z, alive = step_return(model, z, actions[-1], alive, gamma**t, value, penalty)
     value += gamma**horizon * alive * model.min_q(z, model.policy(z, policy_std, noise[horizon])).squeeze(-1)
     return th.stack(actions), value
 
@@ -237,7 +268,14 @@ def refit_gaussian(elites: th.Tensor, elite_returns: th.Tensor, temperature: flo
 
 
 def mppi(
-    model: TOLD, obs: th.Tensor, warm_mean: th.Tensor, noise: PlanNoise, min_std: th.Tensor, cfg: MPPIConfig, gamma: float
+    model: TOLD,
+    obs: th.Tensor,
+    warm_mean: th.Tensor,
+    noise: PlanNoise,
+    min_std: th.Tensor,
+    cfg: MPPIConfig,
+    gamma: float,
+    penalty: th.Tensor | None = None,
 ) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
     """Plan one action per env (Alg. 2 lines 2–15).
 
@@ -248,6 +286,7 @@ def mppi(
     :param min_std: ``ε`` of eq. 11 (0-d tensor).
     :param cfg: the planner's settings.
     :param gamma: the discount of eq. 10 (SPPO's ``gamma``).
+    :param penalty: the price of a predicted intervention in eq. 10 (0-d tensor; None: none, the paper's return).
     :return: actions ``(E, A)`` in [-1, 1] — ``μ_J``'s first step plus ``σ_J`` times ``noise.action`` —, ``μ_J``
         and the alternatives ``(E, num_candidates - 1, A)``: the first actions of the first iteration's best
         trajectories, best first.
@@ -255,7 +294,9 @@ def mppi(
     n_envs, horizon, adim = warm_mean.shape
     n, p = cfg.num_samples, cfg.num_policy_samples
     z = model.encode(obs.to(next(model.parameters()).dtype))
-    pi_actions, pi_returns = policy_rollout(model, z.repeat_interleave(p, 0), horizon, gamma, cfg.policy_std, noise.policy)
+    pi_actions, pi_returns = policy_rollout(
+        model, z.repeat_interleave(p, 0), horizon, gamma, cfg.policy_std, noise.policy, penalty
+    )
     pi_actions = pi_actions.view(horizon, n_envs, p, adim).permute(1, 2, 0, 3).float()
     pi_returns = pi_returns.view(n_envs, p)
     z_samples = z.repeat_interleave(n, 0)
@@ -264,7 +305,7 @@ def mppi(
     for j in range(cfg.iterations):
         samples = (mean.unsqueeze(1) + std.unsqueeze(1) * noise.samples[j]).clamp(-1.0, 1.0)
         flat = samples.permute(2, 0, 1, 3).reshape(horizon, n_envs * n, adim).to(z.dtype)
-        returns = blocked_returns(model, z_samples, flat, noise.terminal[j], cfg, gamma, block_rows).view(n_envs, n)
+        returns = blocked_returns(model, z_samples, flat, noise.terminal[j], cfg, gamma, block_rows, penalty).view(n_envs, n)
         all_actions, all_returns = th.cat([samples, pi_actions], 1), th.cat([returns, pi_returns], 1)
         elite_returns, elite_idx = all_returns.topk(cfg.num_elites, dim=1)
         elites = all_actions.gather(1, elite_idx[:, :, None, None].expand(-1, -1, horizon, adim))
@@ -353,6 +394,7 @@ class MPPIPlanner:
         step: int,
         deterministic: bool = False,
         generator: th.Generator | None = None,
+        penalty: float | None = None,
     ) -> Plan:
         """Plan one action per env from the previous plan's mean, shifted (Alg. 2 lines 2–15).
 
@@ -362,6 +404,7 @@ class MPPIPlanner:
         :param deterministic: return ``μ_J``'s first action instead of a sample from ``N(μ_J, σ_J²)``.
         :param generator: where the noise comes from (torch's global RNG on the model's device if None); a CPU
             generator gives the same plan on every device.
+        :param penalty: the price of a predicted intervention (SPPO's multiplier; None: none).
         :return: the actions, the new mean and the candidates (:class:`Plan`).
         """
         cfg, n_envs = self.config, obs.shape[0]
@@ -376,8 +419,9 @@ class MPPIPlanner:
         noise = PlanNoise(*(x.to(self.device) for x in noise))
         min_std = th.tensor(cfg.min_std_at(step), device=self.device)
         warm = warm_start(prev_mean.to(self.device), horizon)
+        price = None if penalty is None else th.tensor(penalty, device=self.device)
         action, mean, alternatives = self.function(
-            self._planning_model(model), obs.to(self.device), warm, noise, min_std, cfg, self.gamma
+            self._planning_model(model), obs.to(self.device), warm, noise, min_std, cfg, self.gamma, price
         )
         new_mean = th.zeros_like(prev_mean, device=self.device)
         new_mean[:, :horizon] = mean

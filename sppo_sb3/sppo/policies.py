@@ -31,6 +31,8 @@ class TOLDPolicy(BasePolicy):
         ``termination_model`` argument (False: TD-MPC's model).
     :param told: TOLD's variant, ``"paper"`` (TD-MPC's model, the default) or ``"tdmpc2"`` (see :class:`TOLD`);
         ``SPPO`` sets it from its ``told`` argument.
+    :param intervention: give TOLD its intervention head (see :class:`TOLD`); ``SPPO`` sets it from its
+        ``intervention_target``.
     :param normalize_images: SB3's policy argument, saved by ``_get_constructor_parameters``; TOLD's inputs are flat
         state vectors, so it must be False.
     """
@@ -46,6 +48,7 @@ class TOLDPolicy(BasePolicy):
         *,
         termination: bool,
         told: TOLDName = "paper",
+        intervention: bool = False,
         optimizer_class: type[th.optim.Optimizer] = th.optim.Adam,
         optimizer_kwargs: dict[str, Any] | None = None,
         normalize_images: bool = False,
@@ -61,10 +64,10 @@ class TOLDPolicy(BasePolicy):
             normalize_images=False,
         )
         self.latent_dim, self.encoder_dim, self.hidden_dim = latent_dim, encoder_dim, hidden_dim
-        self.termination, self.told = termination, told
+        self.termination, self.told, self.intervention = termination, told, intervention
         obs_dim = int(spaces.flatdim(observation_space))
         action_dim = get_action_dim(action_space)  # TOLD acts on flat actions, whatever the Box's shape
-        self.model = TOLD(obs_dim, action_dim, latent_dim, encoder_dim, hidden_dim, termination, told)
+        self.model = TOLD(obs_dim, action_dim, latent_dim, encoder_dim, hidden_dim, termination, told, intervention)
         self.model_target = copy.deepcopy(self.model)
         self.model_target.requires_grad_(False)
         model_params = [p for name, p in self.model.named_parameters() if not name.startswith("pi.")]
@@ -80,6 +83,7 @@ class TOLDPolicy(BasePolicy):
             hidden_dim=self.hidden_dim,
             termination=self.termination,
             told=self.told,
+            intervention=self.intervention,
             lr_schedule=self._dummy_schedule,
             optimizer_class=self.optimizer_class,
             optimizer_kwargs=self.optimizer_kwargs,

@@ -23,7 +23,8 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sppo_sb3.common.action_repeat import check_held_steps_are_shielded
 from sppo_sb3.common.costs import intervention_count
-from sppo_sb3.common.keys import INTERVENED_KEY, INTERVENTIONS_KEY, N_UPDATES_LOG_KEY, PROPOSED_ACTION_KEY
+from sppo_sb3.common.keys import ENV_STEPS_KEY, INTERVENED_KEY, INTERVENTIONS_KEY, N_UPDATES_LOG_KEY, PROPOSED_ACTION_KEY
+from sppo_sb3.common.lagrange import PIDLagrangian
 from sppo_sb3.common.safety import SafetyTrackingMixin
 from sppo_sb3.shield.base import ShieldingRule
 from sppo_sb3.shield.intervention import OnIntervention, check_on_intervention, check_penalty
@@ -42,6 +43,10 @@ from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, draw_target_heads, topo_u
 from sppo_sb3.sppo.world_model import TOLDName, check_told_name
 
 SelfSPPO = TypeVar("SelfSPPO", bound="SPPO")
+
+
+INTERVENTION_RATE_WINDOW = 1000
+"""Agent steps over which SPPO averages its shield's intervention rate for ``intervention_target`` (an EMA)."""
 
 
 def check_spaces(observation_space: spaces.Space, action_space: spaces.Space) -> None:
@@ -100,7 +105,16 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         velocity tasks): ``"continue"`` keeps the proposal with the step's reward less ``penalty`` and bootstraps from
         the real next state, and ``"none"`` learns from the executed steps alone.
     :param penalty: what an intervention costs the learner, ``>= 0``: eq. 7's ``R̃ = -penalty`` (under
-        ``"continue"``, subtracted from the step's reward).
+        ``"continue"``, subtracted from the step's reward); with ``intervention_target``, the price's starting value.
+    :param intervention_target: price the shield's interventions instead of a hand-set ``penalty`` (not in the paper:
+        SafeLOOP's and SafeDreamer's cost-aware planning and PID Lagrangian, applied to the shield's interventions).
+        The price ``λ >= 0`` is a PID Lagrange multiplier (:class:`~sppo_sb3.common.lagrange.PIDLagrangian`) that holds
+        the share of env steps the shield intervenes on (averaged over the last :data:`INTERVENTION_RATE_WINDOW` agent
+        steps) at this target, starting from ``penalty``. It replaces ``penalty`` in ``B̃``'s relabel (``R̃ = -λ``,
+        or ``r - λ`` under ``"continue"``; stored steps are priced when sampled, so the price of every stored
+        intervention follows ``λ``), and TOLD learns an intervention head ``I(z, a)``, the probability that the shield
+        rejects the proposal ``a``, so that eq. 10 and the policy prior's loss pay ``λ · P(I)`` on every imagined step.
+        ``None`` (default): the paper's planner, which hears of the shield only through the relabel, at ``penalty``.
     :param termination_model: give TOLD a termination head, trained on ``B̃``'s terminal flags (absorbing
         interventions and real terminations, not time-limit truncations), and plan with it: eq. 10 adds no reward and
         no value after a predicted absorbing step. ``"auto"`` (default): on where the task ends episodes on its own
@@ -180,6 +194,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         shield: ShieldingRule | str | None = "auto",
         on_intervention: OnIntervention = "restart",
         penalty: float = 1.0,
+        intervention_target: float | None = None,
         termination_model: bool | Literal["auto"] = "auto",
         told: TOLDName = "paper",
         refine_shield: bool | Literal["auto"] = "auto",
@@ -243,6 +258,15 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         self.shield = shield
         self.on_intervention = on_intervention
         self.penalty = penalty
+        if intervention_target is not None and not 0.0 <= intervention_target < 1.0:
+            raise ValueError(
+                "intervention_target is the share of env steps the shield may intervene on, in [0, 1); got "
+                f"{intervention_target}."
+            )
+        self.intervention_target = intervention_target
+        self.intervention_price = None if intervention_target is None else starting_price(intervention_target, penalty)
+        self.intervention_rate = 0.0
+        self.policy_kwargs["intervention"] = intervention_target is not None
         if termination_model == "auto":
             termination_model = self.env is not None and task_terminates(self.env)
         self.termination_model = bool(termination_model)
@@ -356,9 +380,10 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         """Allocate ``B``/``B̃`` on the first ``learn``, so that loading a model to deploy it allocates nothing."""
         if self.replay_buffer is not None:
             return
+        price = self._price()
         kwargs = {
             "on_intervention": self.on_intervention,
-            "penalty": self.penalty,
+            "penalty": self.penalty if price is None else price,
             "optimize_memory_usage": self.optimize_memory_usage,
         }
         kwargs.update(self.replay_buffer_kwargs)
@@ -402,7 +427,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
                     warmup[backup] = self.policy.scale_action(zeta).reshape(int(backup.sum()), -1)
             return warmup[:, None]
         obs_tensor = th.as_tensor(obs, dtype=th.float32, device=self.device)
-        plan = self.planner.plan(self.policy.model, obs_tensor, self._plan_mean, self.num_timesteps)
+        plan = self.planner.plan(self.policy.model, obs_tensor, self._plan_mean, self.num_timesteps, penalty=self._price())
         self._plan_mean = plan.mean
         return plan.candidates.cpu().numpy()
 
@@ -450,6 +475,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             check_finite(new_obs, rewards)
             for info, shielded, wanted in zip(infos, intervened, candidates[:, 0]):
                 record_own_intervention(info, bool(shielded), wanted)
+            self._update_intervention_price(infos)
             self.num_timesteps += env.num_envs
             num_collected_steps += 1
             callback.update_locals(locals())
@@ -470,6 +496,21 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         callback.on_rollout_end()
         return RolloutReturn(num_collected_steps * env.num_envs, num_collected_episodes, continue_training=True)
 
+    def _price(self) -> float | None:
+        """What a predicted intervention costs the planner and the prior now (``intervention_target``; None: nothing)."""
+        return None if self.intervention_price is None else self.intervention_price.multiplier
+
+    def _update_intervention_price(self, infos: list[dict[str, Any]]) -> None:
+        """Average the share of env steps the shield intervened on, and step the PID multiplier toward the target."""
+        if self.intervention_price is None:
+            return
+        env_steps = sum(int(info.get(ENV_STEPS_KEY, 1)) for info in infos)
+        share = sum(intervention_count(info) for info in infos) / max(env_steps, 1)
+        self.intervention_rate += (share - self.intervention_rate) / INTERVENTION_RATE_WINDOW
+        self.intervention_price.update(self.intervention_rate)
+        if self.replay_buffer is not None:  # B̃'s relabel reads the price when it samples
+            self.replay_buffer.penalty = self.intervention_price.multiplier
+
     # ------------------------------------------------------------------ training phase (Alg. 1 lines 10–13)
     def train(self, gradient_steps: int, batch_size: int) -> None:
         """TOPO on sequences of ``B̃`` (Alg. 3), EMA target every ``target_update_interval`` updates.
@@ -487,7 +528,11 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             self._n_updates += 1
             ema = th.tensor(self.tau if self._n_updates % self.target_update_interval == 0 else 0.0, device=self.device)
             heads = draw_target_heads(policy.model, self.device)  # None (nothing drawn) for the paper's TOLD
-            stats = self._topo_update(*models, *optimizers, batch, noise, lr, ema, self.topo_config, self.gamma, heads)
+            price = self._price()
+            penalty = None if price is None else th.tensor(price, device=self.device)
+            stats = self._topo_update(
+                *models, *optimizers, batch, noise, lr, ema, self.topo_config, self.gamma, heads, penalty
+            )
             self._train_stats += stats
             self._train_stats_count += 1
         self.logger.record(N_UPDATES_LOG_KEY, self._n_updates, exclude="tensorboard")  # as SB3's off-policy algorithms
@@ -514,7 +559,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         if self._train_stats_count:
             means = (self._train_stats / self._train_stats_count).tolist()
             for key, value in zip(TOPO_STATS, means):
-                if key != "termination" or self.termination_model:  # no head, no loss to log
+                if (key != "termination" or self.termination_model) and (key != "intervention" or self.intervention_price):
                     self.logger.record(f"train/{key}", value)
             self._train_stats.zero_()
             self._train_stats_count = 0
@@ -523,6 +568,9 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         self._record_safety_logs()
         if self.planner_config.num_candidates > 1:
             self.logger.record("safety/alternatives_executed", self.alternatives_executed)
+        if self.intervention_price is not None:
+            self.logger.record("safety/intervention_rate", self.intervention_rate)
+            self.logger.record("train/intervention_price", self.intervention_price.multiplier)
         self._record_train_stats()
         super().dump_logs()
 
@@ -555,7 +603,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             prev_mean = self._warm_start_from_state(state, episode_start, len(obs))
             generator = th.Generator().manual_seed(0) if deterministic else None  # on the CPU: the same on every device
             model, step = self.policy.model, self.num_timesteps
-            plan = self.planner.plan(model, obs_tensor, prev_mean, step, deterministic, generator)
+            plan = self.planner.plan(model, obs_tensor, prev_mean, step, deterministic, generator, self._price())
             scaled, new_state = plan.candidates, (plan.mean.cpu().numpy(),)
         else:
             with th.no_grad():
@@ -626,6 +674,14 @@ def record_own_intervention(info: dict[str, Any], intervened: bool, proposal: np
     """
     count = int(intervened) + intervention_count(info)
     info[INTERVENED_KEY], info[INTERVENTIONS_KEY], info[PROPOSED_ACTION_KEY] = count > 0, count, proposal
+
+
+def starting_price(target: float, penalty: float) -> PIDLagrangian:
+    """The PID multiplier of ``intervention_target``, started at ``penalty`` (its integral set so that ``λ_0 = penalty``)."""
+    pid = PIDLagrangian(target)
+    pid.integral = penalty / pid.ki
+    pid.multiplier = penalty
+    return pid
 
 
 def check_discount_source(planner_kwargs: dict[str, Any] | None, topo_kwargs: dict[str, Any] | None) -> None:

@@ -28,6 +28,8 @@ class TOPOConfig:
     :param consistency_coef: ``c3`` of eq. 14.
     :param termination_coef: weight of the termination head's loss (binary cross-entropy on ``B̃``'s terminal flags;
         used only when TOLD has the head).
+    :param intervention_coef: weight of the intervention head's loss (binary cross-entropy of ``I(z, proposal)`` on
+        ``B̃``'s intervention flags; used only when TOLD has the head).
     :param rho: ``λ`` of eq. 13, the per-step decay of the loss weight.
     :param grad_clip: max gradient norm.
     :param policy_std: std of the clipped noise on ``π(z')`` in the TD target.
@@ -37,12 +39,13 @@ class TOPOConfig:
     value_coef: float = 0.1
     consistency_coef: float = 2.0
     termination_coef: float = 1.0
+    intervention_coef: float = 1.0
     rho: float = 0.5
     grad_clip: float = 10.0
     policy_std: float = 0.05
 
 
-TOPO_STATS = ("loss", "pi_loss", "grad_norm", "reward", "value", "consistency", "termination")
+TOPO_STATS = ("loss", "pi_loss", "grad_norm", "reward", "value", "consistency", "termination", "intervention")
 """Names of the entries of the statistics vector that :func:`topo_update` returns."""
 
 
@@ -138,13 +141,14 @@ def model_loss(
 ) -> tuple[th.Tensor, ...]:
     """``J = Σ_i λ^i (c1 L_r + c2 L_v + c3 L_c + c_T L_T)`` (eqs. 13, 14) over a batch of sequences, scaled by ``1/H``.
 
-    ``L_T``, the termination head's cross-entropy, is not in the paper's eq. 14; it is 0 without the head.
+    ``L_T``, the termination head's cross-entropy, is not in the paper's eq. 14; it is 0 without the head. Nor is
+    ``c_I L_I``, the intervention head's cross-entropy on the proposals the shield judged (0 without the head).
 
     :param noise: ``(H, B, A)`` standard normal draws for the TD targets' policy noise.
     :param gamma: the TD target's discount.
     :param heads: the target heads of the TD target's min (:func:`td_target`; None: all).
     :return: the loss, the rolled latents ``z_0 .. z_(H-1)`` (detached, for the policy loss) and the weighted
-        reward, value, consistency and termination terms.
+        reward, value, consistency, termination and intervention terms.
     """
     horizon = batch.actions.shape[0]
     with th.no_grad():
@@ -163,13 +167,27 @@ def model_loss(
         logits = model.termination_logit(latents[:-1], batch.actions)
         termination = (weights * (termination_loss(logits, batch.terminals) * batch.mask).mean(dim=1)).sum()
         total = total + cfg.termination_coef * termination
-    return total / horizon, latents[:-1].detach(), reward, value, consistency, termination
+    intervention = th.zeros((), device=latents.device)
+    if model.intervention is not None and batch.proposals is not None and batch.intervened is not None:
+        logits = model.intervention(th.cat([latents[:-1], batch.proposals], dim=-1))
+        intervention = (weights * (termination_loss(logits, batch.intervened) * batch.mask).mean(dim=1)).sum()
+        total = total + cfg.intervention_coef * intervention
+    return total / horizon, latents[:-1].detach(), reward, value, consistency, termination, intervention
 
 
-def policy_loss(model: TOLD, latents: th.Tensor, mask: th.Tensor, cfg: TOPOConfig) -> th.Tensor:
+def policy_loss(
+    model: TOLD, latents: th.Tensor, mask: th.Tensor, cfg: TOPOConfig, penalty: th.Tensor | None = None
+) -> th.Tensor:
     """``-Σ_i λ^i Q(z_i, π(z_i))`` over the rolled (detached) ``(H, B, latent)`` latents — TD-MPC's policy objective,
-    with ``Q`` :meth:`TOLD.min_q` (``"paper"``: the min of the twin heads; ``"tdmpc2"``: the mean of the five)."""
-    values = model.min_q(latents, model.policy(latents)).squeeze(-1)
+    with ``Q`` :meth:`TOLD.min_q` (``"paper"``: the min of the twin heads; ``"tdmpc2"``: the mean of the five).
+
+    :param penalty: the price of an intervention (0-d tensor): with TOLD's intervention head, the prior also learns
+        away from what the shield rejects, ``-Σ_i λ^i (Q(z_i, π(z_i)) - penalty · P(I | z_i, π(z_i)))``.
+    """
+    action = model.policy(latents)
+    values = model.min_q(latents, action).squeeze(-1)
+    if penalty is not None:
+        values = values - penalty * model.intervention_probability(latents, action)
     weights = rho_weights(cfg, latents.shape[0], latents.device)
     return -(weights * (values * mask).mean(dim=1)).sum() / latents.shape[0]
 
@@ -186,6 +204,7 @@ def topo_update(
     cfg: TOPOConfig,
     gamma: float,
     heads: th.Tensor | None = None,
+    penalty: th.Tensor | None = None,
 ) -> th.Tensor:
     """One TOPO update (Alg. 3 lines 3–13): a model step on ``J``, a policy step on the updated ``Q``, the EMA target.
 
@@ -198,15 +217,18 @@ def topo_update(
     :param gamma: the TD target's discount (SPPO's ``gamma``).
     :param heads: the target's Q heads whose min is the TD target (:func:`draw_target_heads`: None for the
         ``"paper"`` TOLD, two random indices for ``"tdmpc2"``); an input, so that compiled and eager updates agree.
+    :param penalty: the price of an intervention in the policy loss (:func:`policy_loss`; None: none).
     :return: the statistics named by :data:`TOPO_STATS`, as one detached tensor (read it when logging, not per step).
     """
     model_params = [p for group in optimizer.param_groups for p in group["params"]]
     pi_params = [p for group in pi_optimizer.param_groups for p in group["params"]]
-    loss, latents, reward, value, consistency, termination = model_loss(model, target, batch, noise, cfg, gamma, heads)
+    loss, latents, reward, value, consistency, termination, intervention = model_loss(
+        model, target, batch, noise, cfg, gamma, heads
+    )
     grads, grad_norm = clip_by_total_norm(th.autograd.grad(loss, model_params), cfg.grad_clip)
     apply_gradients(optimizer, grads, lr)
-    pi_loss = policy_loss(model, latents, batch.mask, cfg)
+    pi_loss = policy_loss(model, latents, batch.mask, cfg, penalty)
     pi_grads, _ = clip_by_total_norm(th.autograd.grad(pi_loss, pi_params), cfg.grad_clip)
     apply_gradients(pi_optimizer, pi_grads, lr)
     ema_update(model, target, ema_weight)
-    return th.stack([loss, pi_loss, grad_norm, reward, value, consistency, termination]).detach()
+    return th.stack([loss, pi_loss, grad_norm, reward, value, consistency, termination, intervention]).detach()

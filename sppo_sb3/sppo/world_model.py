@@ -63,6 +63,9 @@ def zero_last_layer(net: nn.Sequential, bias: float = 0.0) -> None:
 INITIAL_TERMINATION_LOGIT = -4.6
 """``log(0.01 / 0.99)``: the untrained termination head predicts that 1% of steps end the episode."""
 
+INITIAL_INTERVENTION_LOGIT = -3.0
+"""The untrained intervention head predicts that the shield rejects about 5% of proposals."""
+
 TOLDName = Literal["paper", "tdmpc2"]
 TOLD_NAMES: tuple[TOLDName, ...] = ("paper", "tdmpc2")
 """The TOLD variants: TD-MPC's (v1) networks, the paper's model, and TD-MPC2's robust ones."""
@@ -118,6 +121,8 @@ class TOLD(nn.Module):
     :param hidden_dim: hidden width of ``d``, ``R``, ``π`` (two layers each) and ``Q``.
     :param termination: add the termination head ``T(z, a)`` (two hidden layers, like ``R``); without it TOLD is
         TD-MPC's model and plans as if no episode ever ended.
+    :param intervention: add the intervention head ``I(z, a)``: the logit of the probability that the shield rejects
+        the proposal ``a`` (two hidden layers, like ``R``); not in the paper (SPPO's ``intervention_target``).
     :param told: the variant: ``"paper"`` (TD-MPC's) or ``"tdmpc2"`` (TD-MPC2's pieces, see above).
     :raises ValueError: an unknown ``told``, or a ``"tdmpc2"`` ``latent_dim`` that is not a multiple of 8.
 
@@ -133,6 +138,7 @@ class TOLD(nn.Module):
         hidden_dim: int = 512,
         termination: bool = False,
         told: TOLDName = "paper",
+        intervention: bool = False,
     ):
         super().__init__()
         check_told_name(told)
@@ -161,11 +167,14 @@ class TOLD(nn.Module):
         for name in self.q_names:
             self.add_module(name, q_network(za_dim, hidden_dim) if paper else net(za_dim, hidden, 1))
         self.termination = net(za_dim, hidden, 1) if termination else None
+        self.intervention = net(za_dim, hidden, 1) if intervention else None
         self.apply(orthogonal_init)
         for head in (self.reward, *self.q_heads):
             zero_last_layer(head)
         if self.termination is not None:
             zero_last_layer(self.termination, INITIAL_TERMINATION_LOGIT)
+        if self.intervention is not None:
+            zero_last_layer(self.intervention, INITIAL_INTERVENTION_LOGIT)
 
     @property
     def q_heads(self) -> list[nn.Sequential]:
@@ -204,6 +213,12 @@ class TOLD(nn.Module):
         if self.termination is None:
             return th.ones(z.shape[:-1], dtype=z.dtype, device=z.device)
         return th.sigmoid(-self.termination_logit(z, action)).squeeze(-1)
+
+    def intervention_probability(self, z: th.Tensor, action: th.Tensor) -> th.Tensor:
+        """``P(the shield rejects the proposal a in z)`` of shape ``(...,)``: zeros without an intervention head."""
+        if self.intervention is None:
+            return th.zeros(z.shape[:-1], dtype=z.dtype, device=z.device)
+        return th.sigmoid(self.intervention(th.cat([z, action], dim=-1))).squeeze(-1)
 
     def policy(self, z: th.Tensor, std: float = 0.0, noise: th.Tensor | None = None) -> th.Tensor:
         """``π(z)`` squashed to [-1, 1]; with ``std > 0`` adds clipped Gaussian exploration noise (TD-MPC).
