@@ -9,8 +9,9 @@
   to the goal, through anything in the way: what an unsafe learner does), ``route`` (head for the goal around the
   hazards, vases and pillars: a driver that plans), ``random`` and ``adversarial`` (steer into the nearest hazard,
   vase or pillar). Reported: ms per env step of the whole shielded step and of the env alone, the 95th percentile, the
-  share of steps that solved ``Q̄(s, a)``, interventions, the cost paid (0: the shield held) and the goals reached;
-  then the goals and cost of the same proposals without the shield (does the shield leave the task solvable?).
+  share of steps that solved ``Q̄(s, a)``, interventions (and the edits among them: ``--rule permissive=1``, the
+  accepted action nearest a rejected proposal instead of the backup's), the cost paid (0: the shield held) and the
+  goals reached; then the goals and cost of the same proposals without the shield (does the shield leave the task solvable?).
   The goal-seeking and adversarial proposals push against the shield on most steps, so it solves on most steps;
 - ``sppo``: SPPO training (``hyperparams/navigation/sppo.yml``) for ``--sppo-steps`` with the task's rule, timed
   inside the run: the shield's ms per env step where the learner proposes (it learns to stop pushing against the
@@ -181,7 +182,7 @@ def bench_shield(env_id: str, kind: str, steps: int) -> dict[str, Any]:
     shielded.reset(seed=0)
     shielded.step(np.zeros(2))  # the first step checks the rule on the action space: not timed
     rng = np.random.default_rng(0)
-    times, env_times, cost, interventions, goals, goals_alone, cost_alone = [], [], 0.0, 0, 0, 0, 0.0
+    times, env_times, cost, interventions, edits, goals, goals_alone, cost_alone = [], [], 0.0, 0, 0, 0, 0, 0.0
     for _ in range(steps):
         action = proposal(kind, inner, rng)
         start = time.perf_counter()
@@ -189,6 +190,7 @@ def bench_shield(env_id: str, kind: str, steps: int) -> dict[str, Any]:
         times.append(time.perf_counter() - start)
         cost += info["cost"]
         interventions += info["shield_intervened"]
+        edits += info.get("shield_edits", 0)
         goals += bool(info.get("goal_met", False))
         if terminated or truncated:
             shielded.reset()
@@ -212,6 +214,7 @@ def bench_shield(env_id: str, kind: str, steps: int) -> dict[str, Any]:
         "env ms/step": 1e3 * float(np.mean(env_times)),
         "Q̄(s,a) solved": rule.solve_counts.q_solves / max(rule.solve_counts.steps, 1),
         "interventions": interventions,
+        "edits": edits,
         "cost": cost,
         "goals": goals,
         "alone: goals": goals_alone,

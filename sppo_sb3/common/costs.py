@@ -12,7 +12,7 @@ from typing import Any, SupportsFloat
 import gymnasium as gym
 import numpy as np
 
-from sppo_sb3.common.keys import COST_KEY, COSTLY_STEPS_KEY, INTERVENED_KEY, INTERVENTIONS_KEY
+from sppo_sb3.common.keys import COST_KEY, COSTLY_STEPS_KEY, EDITS_KEY, INTERVENED_KEY, INTERVENTIONS_KEY
 
 
 class MissingCostError(KeyError):
@@ -47,6 +47,12 @@ def intervention_count(info: dict[str, Any]) -> int:
     """On how many env steps a shield replaced the action: ``info["shield_interventions"]`` under an action repeat,
     else 1 or 0 from ``info["shield_intervened"]`` (0 where no shield reports)."""
     return int(info.get(INTERVENTIONS_KEY, bool(info.get(INTERVENED_KEY, False))))
+
+
+def edit_count(info: dict[str, Any]) -> int:
+    """On how many env steps a permissive shield replaced the action by an edit rather than the backup's (0 where no
+    shield reports edits): ``info["shield_edits"]``, among :func:`intervention_count`'s."""
+    return int(info.get(EDITS_KEY, 0))
 
 
 def costs_from_infos(infos: Sequence[dict[str, Any]], required: bool = True) -> np.ndarray:

@@ -31,6 +31,9 @@ ENV_STEPS_KEY = "env_steps"
 COSTLY_STEPS_KEY = "costly_steps"
 #: under an action repeat: how many of those env steps the shield replaced the held action
 INTERVENTIONS_KEY = "shield_interventions"
+#: on how many env steps of the step the shield's replacement was an edit (an accepted action near the proposal) rather
+#: than the backup's: a permissive rule's (they are among ``info["shield_interventions"]``)
+EDITS_KEY = "shield_edits"
 #: on the step that ends an episode: the sum of its ``info["cost"]`` (a ``monitor.csv`` column)
 EPISODE_COST_INFO_KEY = "episode_cost"
 #: on the step that ends an episode: its steps with ``info["cost"] > 0`` (a ``monitor.csv`` column)

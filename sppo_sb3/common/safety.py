@@ -21,7 +21,7 @@ from stable_baselines3.common.logger import Logger
 from stable_baselines3.common.type_aliases import MaybeCallback
 from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
-from sppo_sb3.common.costs import costly_steps, costs_from_infos, intervention_count
+from sppo_sb3.common.costs import costly_steps, costs_from_infos, edit_count, intervention_count
 from sppo_sb3.common.keys import ENV_STEPS_KEY, EPISODE_COST_ESTIMATE_LOG_KEY, SAFETY_LOG_PREFIX
 
 #: the final summary also gives the mean return of this many last episodes: where a short run has got to
@@ -40,6 +40,7 @@ class SafetyMetrics:
         self.unsafe_episodes = 0
         self.violations = 0
         self.interventions = 0
+        self.edits = 0  # interventions whose replacement was a permissive shield's edit, not the backup's action
         self.steps = 0
         self.recent: deque[dict[str, float]] = deque(maxlen=window)
         self.n_envs = n_envs
@@ -112,6 +113,7 @@ class SafetyMetrics:
             counts = np.maximum(counts, np.asarray(intervened, dtype=np.int64))
         violations = np.array([costly_steps(info) for info in infos])
         env_steps = np.array([int(info.get(ENV_STEPS_KEY, 1)) for info in infos])
+        self.edits += sum(edit_count(info) for info in infos)
         self.update(np.asarray(rewards, dtype=np.float64), costs, np.asarray(dones, dtype=bool), counts, violations, env_steps)
         return costs
 
@@ -143,6 +145,8 @@ class SafetyMetrics:
             "cumulative_interventions": float(self.interventions),
             "intervention_rate": self.interventions / max(self.steps, 1),
         }
+        if self.edits:  # a permissive shield's: of the interventions, the edits (the rest executed the backup's action)
+            out["cumulative_edits"] = float(self.edits)
         for key in ("return", "cost", "violations", "interventions"):
             out[f"ep_{key}_mean"] = float(np.mean([ep[key] for ep in self.recent])) if self.recent else float("nan")
         return out
@@ -162,6 +166,11 @@ class SafetyMetrics:
             f"episodes={int(s['episodes'])}  mean return (last {len(self.recent)})={s['ep_return_mean']:.2f}{final}  "
             f"cumulative violations={int(s['cumulative_violations'])}  safety rate={s['safety_rate']:.2f}%  "
             f"shield interventions={int(s['cumulative_interventions'])}"
+            + (
+                f" (edits {int(s['cumulative_edits'])}, backups {int(s['cumulative_interventions'] - s['cumulative_edits'])})"
+                if self.edits
+                else ""
+            )
         )
 
 

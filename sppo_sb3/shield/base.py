@@ -37,11 +37,19 @@ class ShieldDecision:
     :param actions: the executed actions ``a_safe`` (proposed where allowed, backup where shielded).
     :param intervened: ``True`` where ``(s, a) ∈ I`` and the backup action replaced the proposal.
     :param advantage: ``Ā(s, a)`` of each proposal (NaN where it could not be computed).
+    :param edited: where the proposal was replaced by an *edit*, an action near it that the rule accepted, instead of
+        the backup's (a permissive rule's; ``None``: no edits, every replacement is the backup's).
     """
 
     actions: np.ndarray
     intervened: np.ndarray
     advantage: np.ndarray
+    edited: np.ndarray | None = None
+
+    @property
+    def edits(self) -> np.ndarray:
+        """Where the executed action is an edit (all ``False`` for a rule without edits)."""
+        return np.zeros(len(self.intervened), dtype=bool) if self.edited is None else np.asarray(self.edited, dtype=bool)
 
 
 #: relative tolerance of ``Ā`` on the scale of its two ``Q̄`` terms: a difference within it is rounding (two sums of
@@ -220,6 +228,8 @@ class ShieldingRule(ABC):
             decision.advantage[accepted] = tried.advantage[~tried.intervened]
             choice[accepted] = k
         decision.intervened = choice < 0
+        if decision.edited is not None:  # an edit stays where no candidate was accepted
+            decision.edited = decision.edits & decision.intervened
         return decision, choice
 
     def close_failures(self, obs: np.ndarray, actions: np.ndarray, decision: ShieldDecision) -> ShieldDecision:
@@ -233,7 +243,7 @@ class ShieldingRule(ABC):
         executed = np.array(decision.actions, dtype=np.float64).reshape(actions.shape)
         advantage = np.asarray(decision.advantage, dtype=np.float64).reshape(len(obs))
         unknown = ~(finite_rows(obs) & finite_rows(actions) & np.isfinite(advantage))
-        missing = unknown & ~np.asarray(decision.intervened, dtype=bool)
+        missing = unknown & (~np.asarray(decision.intervened, dtype=bool) | decision.edits)  # the backup's action there
         if missing.any():
             executed[missing] = self.checked_backup(obs[missing], actions.shape[1])
         intervened = np.asarray(decision.intervened, dtype=bool) | unknown
@@ -245,7 +255,8 @@ class ShieldingRule(ABC):
                 "it could not evaluate. Check the env's observations for NaN/inf (stable_baselines3's VecCheckNan "
                 "finds the step) and that backup_action returns finite actions for every valid observation."
             )
-        return ShieldDecision(actions=executed, intervened=intervened, advantage=advantage)
+        edited = None if decision.edited is None else decision.edits & ~unknown
+        return ShieldDecision(actions=executed, intervened=intervened, advantage=advantage, edited=edited)
 
     # --- checks of the rule's outputs ---------------------------------------------------------------------------
 

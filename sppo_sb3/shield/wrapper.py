@@ -12,6 +12,7 @@ from sppo_sb3.common.keys import (
     ABSORBED_KEY,
     ADVANTAGE_KEY,
     COST_KEY,
+    EDITS_KEY,
     ENV_REWARD_KEY,
     EXECUTED_ACTION_KEY,
     INTERVENED_KEY,
@@ -65,6 +66,9 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
     :param penalty: what an intervention costs the learner, ``>= 0``: subtracted from the step's reward under
         ``"continue"`` (once per intervened env step), the absorbing step's reward ``R̃ = -penalty`` under
         ``"terminate"``.
+    :param permissive: where the rule rejects a proposal, execute an accepted action near it instead of the backup's
+        (a rule with edits, :class:`~sppo_sb3.shield.MujocoShieldingRule`'s ``permissive``; every executed action is
+        still one the rule accepted). ``info["shield_edits"]`` counts the env steps replaced by an edit.
     :param action_repeat: env steps each action is held for (:mod:`~sppo_sb3.common.action_repeat`): the learner acts
         every ``action_repeat`` env steps, and the shield checks the held action on *every* env step, executing the
         backup's action on those it rejects. The learner's step then carries the held action's summed reward and cost,
@@ -80,6 +84,7 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         on_intervention: OnIntervention = "continue",
         penalty: float = 0.0,
         action_repeat: int = 1,
+        permissive: bool = False,
     ) -> None:
         super().__init__(env)
         if not isinstance(env.action_space, gym.spaces.Box):
@@ -97,6 +102,8 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         if resolved is None:
             raise TypeError("ShieldWrapper needs a shielding rule: a ShieldingRule or a registered rule's name, not None.")
         self.rule = resolved
+        if permissive:
+            make_permissive(resolved)
         self.on_intervention = on_intervention
         self.penalty = penalty
         self.action_repeat = action_repeat
@@ -139,13 +146,14 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         if self._obs is None:
             raise RuntimeError("ShieldWrapper.step called before reset().")
         proposed = np.clip(np.asarray(action, dtype=np.float64), self._box.low, self._box.high)
-        held, interventions = HeldSteps(), 0
+        held, interventions, edits = HeldSteps(), 0, 0
         first: tuple[np.ndarray, float] | None = None  # the first env step's executed action and Ā
         for _ in range(self.action_repeat):
             obs, reward, terminated, truncated, info, decision = self._shielded_env_step(proposed)
             held.add(reward, info)
             intervened = bool(decision.intervened[0])
             interventions += intervened
+            edits += bool(decision.edits[0])
             first = first or (info[EXECUTED_ACTION_KEY], float(decision.advantage[0]))
             if terminated or truncated or (intervened and self.on_intervention == "terminate"):
                 break
@@ -155,6 +163,8 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
             reward = held.reward
         assert first is not None  # action_repeat >= 1
         info[INTERVENED_KEY] = interventions > 0
+        if edits:
+            info[EDITS_KEY] = edits
         info[PROPOSED_ACTION_KEY] = proposed
         info[EXECUTED_ACTION_KEY], info[ADVANTAGE_KEY] = first
         info[ABSORBED_KEY] = interventions > 0 and self.on_intervention == "terminate"
@@ -189,3 +199,13 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         backup = self.rule.checked_backup(obs, proposal.shape[1])
         takeover = ShieldDecision(actions=backup, intervened=np.ones(1, dtype=bool), advantage=np.full(1, np.nan))
         return self.rule.close_failures(obs, proposal, takeover)  # a backup action that is not finite: ShieldFailure
+
+
+def make_permissive(rule: ShieldingRule) -> None:
+    """Turn on a rule's edits (``permissive``), or say which rules have them."""
+    if not hasattr(rule, "permissive"):
+        raise ValueError(
+            f"{type(rule).__name__} has no edits: permissive=True needs a rule that finds accepted actions near a rejected "
+            "proposal (sppo_sb3.shield.MujocoShieldingRule and the registered navigation, velocity and Half-Cheetah rules)."
+        )
+    rule.permissive = True

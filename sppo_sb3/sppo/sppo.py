@@ -22,8 +22,15 @@ from stable_baselines3.common.utils import should_collect_more_steps
 from stable_baselines3.common.vec_env import VecEnv
 
 from sppo_sb3.common.action_repeat import check_held_steps_are_shielded
-from sppo_sb3.common.costs import intervention_count
-from sppo_sb3.common.keys import ENV_STEPS_KEY, INTERVENED_KEY, INTERVENTIONS_KEY, N_UPDATES_LOG_KEY, PROPOSED_ACTION_KEY
+from sppo_sb3.common.costs import edit_count, intervention_count
+from sppo_sb3.common.keys import (
+    EDITS_KEY,
+    ENV_STEPS_KEY,
+    INTERVENED_KEY,
+    INTERVENTIONS_KEY,
+    N_UPDATES_LOG_KEY,
+    PROPOSED_ACTION_KEY,
+)
 from sppo_sb3.common.lagrange import PIDLagrangian
 from sppo_sb3.common.safety import SafetyTrackingMixin
 from sppo_sb3.shield.base import ShieldingRule
@@ -32,6 +39,7 @@ from sppo_sb3.shield.learned.base import RefinableRule
 from sppo_sb3.shield.learned.latent import LatentModelRule
 from sppo_sb3.shield.persistence import ShieldedLoadMixin
 from sppo_sb3.shield.registry import resolve_shielding_rule
+from sppo_sb3.shield.wrapper import make_permissive
 from sppo_sb3.sppo.buffers import SPPO_ON_INTERVENTION, ShieldedReplayBuffer
 from sppo_sb3.sppo.compile import CompiledFunction, CompileMode, check_compile_mode, should_compile
 from sppo_sb3.sppo.optim import init_optimizer_state, supports_tensor_step
@@ -96,6 +104,9 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         rule) or ``None`` (unshielded, on purpose). The rule in use is :attr:`shield_rule` (``None``:
         unshielded); it is saved with the model, and ``SPPO.load`` raises where it cannot be rebuilt: pass it with
         ``custom_objects={"shield_rule": rule}``, or ``custom_objects={"shield": None}`` to load unshielded.
+    :param permissive_shield: where the rule rejects a proposal, execute an accepted action near it instead of the
+        backup's (a rule with edits: :class:`~sppo_sb3.shield.MujocoShieldingRule`'s ``permissive``); the edits are
+        counted apart among the interventions (``info["shield_edits"]``). Not in the paper.
     :param on_intervention: what ``B̃`` records at an intervention, in the package's one vocabulary
         (:mod:`~sppo_sb3.shield.intervention`; :class:`ShieldedReplayBuffer`). ``"terminate"`` is the paper's ``M̃``
         (an absorbing terminal with reward ``R̃ = -penalty``, nothing more of the episode); ``"restart"`` (default)
@@ -192,6 +203,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         horizon: int | None = None,
         target_update_interval: int = 2,
         shield: ShieldingRule | str | None = "auto",
+        permissive_shield: bool = False,
         on_intervention: OnIntervention = "restart",
         penalty: float = 1.0,
         intervention_target: float | None = None,
@@ -256,6 +268,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         self.horizon = horizon
         self.target_update_interval = target_update_interval
         self.shield = shield
+        self.permissive_shield = permissive_shield
         self.on_intervention = on_intervention
         self.penalty = penalty
         if intervention_target is not None and not 0.0 <= intervention_target < 1.0:
@@ -310,6 +323,8 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         self._convert_train_freq()
         if self.shield_rule is None:
             self.shield_rule = resolve_shielding_rule(self.shield, self.env, required=False)
+            if self.shield_rule is not None and self.permissive_shield:
+                make_permissive(self.shield_rule)
         if self.shield_rule is not None and self.env is not None:
             check_held_steps_are_shielded(self.env, "SPPO's shield")
         learnable = isinstance(self.shield_rule, RefinableRule)
@@ -437,17 +452,17 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         flat = scaled.reshape(-1, *self.action_space.shape)  # type: ignore[misc]
         return self.policy.unscale_action(flat).reshape(*scaled.shape[:2], *self.action_space.shape)  # type: ignore[misc]
 
-    def _shield(self, raw_obs: np.ndarray, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _shield(self, raw_obs: np.ndarray, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Eq. 12 on every env at once, over each env's candidates best first
-        (:meth:`~sppo_sb3.shield.ShieldingRule.shield_first_accepted`): the executed actions (env units and shape) and
-        where the shield intervened (accepted no candidate)."""
+        (:meth:`~sppo_sb3.shield.ShieldingRule.shield_first_accepted`): the executed actions (env units and shape),
+        where the shield intervened (accepted no candidate) and where its replacement was an edit."""
         if self.shield_rule is None:
-            return candidates[:, 0], np.zeros(len(candidates), dtype=bool)
+            return candidates[:, 0], np.zeros(len(candidates), dtype=bool), np.zeros(len(candidates), dtype=bool)
         flat = candidates.reshape(*candidates.shape[:2], -1)  # rules act on flat actions
         decision, choice = self.shield_rule.shield_first_accepted(raw_obs, flat)
         self.alternatives_executed += int(np.sum(choice > 0))
         executed = decision.actions.reshape(candidates[:, 0].shape).astype(self.action_space.dtype)
-        return executed, decision.intervened
+        return executed, decision.intervened, decision.edits
 
     def collect_rollouts(
         self,
@@ -468,13 +483,13 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
             raw_obs = self._last_original_obs if self._vec_normalize_env is not None else self._last_obs
             proposed = self._propose_actions(self._last_obs, raw_obs, learning_starts)  # type: ignore[arg-type]
             candidates = self._env_actions(proposed)
-            actions, intervened = self._shield(raw_obs, candidates)  # type: ignore[arg-type]
+            actions, intervened, edited = self._shield(raw_obs, candidates)  # type: ignore[arg-type]
 
             new_obs, rewards, dones, infos = env.step(actions)
             assert isinstance(new_obs, np.ndarray)  # flat Box observations (check_spaces)
             check_finite(new_obs, rewards)
-            for info, shielded, wanted in zip(infos, intervened, candidates[:, 0]):
-                record_own_intervention(info, bool(shielded), wanted)
+            for info, shielded, edit, wanted in zip(infos, intervened, edited, candidates[:, 0]):
+                record_own_intervention(info, bool(shielded), bool(edit), wanted)
             self._update_intervention_price(infos)
             self.num_timesteps += env.num_envs
             num_collected_steps += 1
@@ -660,7 +675,7 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
         super().save(path, exclude, include)
 
 
-def record_own_intervention(info: dict[str, Any], intervened: bool, proposal: np.ndarray) -> None:
+def record_own_intervention(info: dict[str, Any], intervened: bool, edited: bool, proposal: np.ndarray) -> None:
     """Write SPPO's own shield decision into a step's info, beside an env-level shield's.
 
     SPPO shields the first env step of its action; where the env holds it for more (``ShieldWrapper(...,
@@ -670,10 +685,13 @@ def record_own_intervention(info: dict[str, Any], intervened: bool, proposal: np
 
     :param info: the step's info, as the env returned it.
     :param intervened: whether SPPO's own shield replaced its proposal.
+    :param edited: whether that replacement was a permissive rule's edit (counted apart, among the interventions).
     :param proposal: the planner's proposal, in env units (what ``B̃`` relabels with).
     """
     count = int(intervened) + intervention_count(info)
     info[INTERVENED_KEY], info[INTERVENTIONS_KEY], info[PROPOSED_ACTION_KEY] = count > 0, count, proposal
+    if edited or EDITS_KEY in info:
+        info[EDITS_KEY] = int(edited) + edit_count(info)
 
 
 def starting_price(target: float, penalty: float) -> PIDLagrangian:

@@ -141,26 +141,47 @@ def test_cheetah_rule_keeps_its_decisions() -> None:
     assert recorded["intervened"].any()
 
 
-@pytest.mark.parametrize("certificate_particles", [4, 11])
-def test_certified_decisions_equal_the_full_solve(certificate_particles: int) -> None:
+@pytest.mark.parametrize("certificate_particles, permissive", [(4, False), (11, False), (4, True)])
+def test_certified_decisions_equal_the_full_solve(certificate_particles: int, permissive: bool) -> None:
     """On a velocity constraint tight enough for random proposals to meet it, certificates change no decision (with
-    the candidates rolled in one chunk and in several)."""
+    the candidates rolled in one chunk and in several), nor an edit of a permissive rule."""
     env_id, constraint = "HalfCheetah-v4", VelocityConstraint(0.3)
-    settings = dict(certificate_particles=certificate_particles)
+    settings = dict(certificate_particles=certificate_particles, permissive=permissive)
     certified, full = small_rule(env_id, constraint, **settings), small_rule(env_id, constraint, certify=False, **settings)
     env = gym.make(env_id)
     env.action_space.seed(0)
     obs, _ = env.reset(seed=0)
-    interventions = 0
+    interventions = edits = 0
     for _ in range(60):
         proposal = env.action_space.sample()[None].astype(np.float64)
         a, b = certified.shield(obs[None], proposal), full.shield(obs[None], proposal)
         np.testing.assert_array_equal(a.actions, b.actions)
         np.testing.assert_array_equal(a.intervened, b.intervened)
+        np.testing.assert_array_equal(a.edits, b.edits)
         interventions += int(a.intervened[0])
+        edits += int(a.edits[0])
         obs, *_ = env.step(a.actions[0])
     assert interventions > 0
+    assert (edits > 0) == permissive
     assert certified.solve_counts.q_solves < full.solve_counts.q_solves
+
+
+def test_an_edit_is_an_action_the_rule_accepts_and_nearer_the_proposal_than_the_backup() -> None:
+    """A permissive rule's edit ``c`` of a rejected proposal: ``Q̄(s, c) <= η`` (so ``Ā(s, c) <= η``, the rule's own
+    test accepts it), the plan it follows after ``c`` keeps ``J <= η``, and ``c`` is nearer the proposal than ``ζ(s)``."""
+    rule = small_rule("HalfCheetah-v4", VelocityConstraint(0.3), permissive=True)
+    obs = np.asarray(random_states(gym.make("HalfCheetah-v4"), 40, seed=3))
+    states = rule.layout.states_from_obs(rule.model, obs)
+    proposals = np.random.default_rng(0).uniform(-1, 1, (len(obs), rule.model.nu))
+    warm = np.zeros((len(obs), rule.horizon, rule.model.nu))
+    zeta = rule.solve(states, warm)
+    executed, tails, edited = rule.nearest_accepted(proposals, warm, zeta)
+    assert edited.any() and not edited.all()
+    np.testing.assert_array_equal(executed[~edited], zeta.plans[~edited, 0])
+    assert np.all(rule.solve(states[edited], warm[edited, 1:], executed[edited]).costs <= rule.eta)
+    assert np.all(rule.plan_costs(states[edited], tails[edited], executed[edited]) <= rule.eta + 1e-12)
+    nearer = np.linalg.norm(executed - proposals, axis=1) < np.linalg.norm(zeta.plans[:, 0] - proposals, axis=1)
+    assert np.all(nearer[edited])
 
 
 def test_certificates_rolled_in_chunks_are_the_first_of_all_and_the_solve_reuses_them() -> None:

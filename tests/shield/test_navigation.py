@@ -13,7 +13,7 @@ from tiny_hyperparams import TINY_SAILR, TINY_SPPO
 
 import sppo_sb3
 from sppo_sb3.common.action_repeat import ActionRepeat
-from sppo_sb3.common.keys import INTERVENTIONS_KEY
+from sppo_sb3.common.keys import EDITS_KEY, INTERVENTIONS_KEY
 from sppo_sb3.envs.navigation import SafetyNavigationEnv
 from sppo_sb3.envs.navigation.objects import Gremlins
 from sppo_sb3.envs.navigation.tasks.button import ButtonTask
@@ -378,25 +378,33 @@ def test_random_proposals_stay_safe_on_circle_walls() -> None:
     assert costs == 0
 
 
-@pytest.mark.parametrize("shielded", [True, False])
-def test_a_proposal_held_into_a_hazard_costs_nothing_behind_the_shield(shielded: bool) -> None:
+@pytest.mark.parametrize("shielded, permissive", [(True, False), (True, True), (False, False)])
+def test_a_proposal_held_into_a_hazard_costs_nothing_behind_the_shield(shielded: bool, permissive: bool) -> None:
     """Held for 5 env steps (0.1 s, the field's time scale), a proposal straight at the nearest hazard never reaches
-    it: the shield checks every held env step. Unshielded, the same held proposals pay (so the test can fail)."""
+    it: the shield checks every held env step, also where it edits the proposal instead of executing the backup's
+    action. Unshielded, the same held proposals pay (so the test can fail)."""
     env = gym.make("sppo_sb3/SafetyPointGoal1-v0")
     inner = env.unwrapped
     assert isinstance(inner, SafetyNavigationEnv)
-    held = ShieldWrapper(env, "auto", action_repeat=5) if shielded else ActionRepeat(env, 5)
+    held = ShieldWrapper(env, "auto", action_repeat=5, permissive=permissive) if shielded else ActionRepeat(env, 5)
     held.reset(seed=1)
-    costs = interventions = 0
+    costs = interventions = edits = 0
     for _ in range(60):
         _, _, terminated, truncated, info = held.step(toward_nearest(inner, "hazard"))
         costs += info["cost"]
         interventions += info.get(INTERVENTIONS_KEY, 0)
+        edits += info.get(EDITS_KEY, 0)
         assert not (terminated or truncated)
     if shielded:
         assert costs == 0 and interventions > 0
+        assert (0 < edits <= interventions) == permissive
     else:
         assert costs > 0
+
+
+def test_only_a_rule_with_edits_can_be_permissive() -> None:
+    with pytest.raises(ValueError, match="has no edits"):
+        ShieldWrapper(gym.make("SafePointCircle-v0"), "auto", permissive=True)
 
 
 def test_unshielded_adversary_pays_so_the_test_above_can_fail() -> None:

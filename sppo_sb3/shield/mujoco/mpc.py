@@ -16,17 +16,19 @@ def physics_controls(controls: np.ndarray, frame_skip: int) -> np.ndarray:
 
 
 class MPCSolution(NamedTuple):
-    """An MPC solve per state: ``(M, L, nu)`` plans, ``(M,)`` their costs ``J`` and whether each plan is a particle."""
+    """An MPC solve per state: ``(M, L, nu)`` plans, ``(M,)`` their costs ``J``, whether each plan is a particle, and
+    ``(M, N)`` the ``J`` of every particle."""
 
     plans: np.ndarray
     costs: np.ndarray
     is_particle: np.ndarray
+    scores: np.ndarray
 
 
 class ShieldStep(NamedTuple):
-    """One shielded step per state: the backup actions (where solved), the decisions, the advantages, the plans to
-    follow after the executed actions ``(M, H - 1, nu)``, and how many states solved ``Q̄(s, a)``, ``ζ(s)`` and
-    ``Q̄(s, ζ(s))``."""
+    """One shielded step per state: the actions executed where the proposal is rejected (the backup's, or an accepted
+    edit), the decisions, the advantages, the plans to follow after the executed actions ``(M, H - 1, nu)``, how many
+    states solved ``Q̄(s, a)``, ``ζ(s)`` and ``Q̄(s, ζ(s))``, and where the executed action is an edit."""
 
     backup: np.ndarray
     intervened: np.ndarray
@@ -35,6 +37,7 @@ class ShieldStep(NamedTuple):
     q_solves: int
     backup_solves: int
     backup_value_solves: int
+    edited: np.ndarray
 
 
 @dataclass

@@ -116,6 +116,11 @@ class MujocoShieldingRule(ShieldingRule):
         the nominal plan's value for the whole plan (the directions of ``{-1, 0, 1}^nu`` but zero, in lexicographic
         order; a robot with two controls has 8): plans a search around ``W`` with noise ``σ`` rarely draws, such as
         a full turn held for the whole lookahead. 0: every particle is ``W + σ·ε_i``.
+    :param permissive: where the rule rejects a proposal, execute the accepted action nearest to it (in units of the
+        control range) instead of the backup's: the first action of a particle of ``ζ``'s solve whose plan has
+        ``J <= η`` (then ``Ā <= Q̄ <= J <= η``: the rule's own test accepts it, as a certificate does), or ``ζ(s)``
+        itself where none is nearer; its plan is followed after it. It costs no rollout more than the rule's own
+        (:meth:`nearest_accepted`). Not in the paper (Dalal et al. 2018 execute the nearest safe action).
     :param n_threads: threads of the rollout pool; ``None``: one per available core; 0: the calling thread.
     :param warm_starts: how many warm plans the rule keeps (one per running env is needed).
     :param env_kwargs: keyword arguments of ``gym.make`` when ``env`` is an id.
@@ -136,6 +141,7 @@ class MujocoShieldingRule(ShieldingRule):
         certify: bool = True,
         certificate_particles: int = 16,
         constant_particles: int = 0,
+        permissive: bool = False,
         n_threads: int | None = None,
         warm_starts: int = 256,
         env_kwargs: dict[str, Any] | None = None,
@@ -165,6 +171,7 @@ class MujocoShieldingRule(ShieldingRule):
         self.certify = certify
         self.certificate_particles = min(certificate_particles, n_particles - 1)
         self.constant_particles = constant_particles
+        self.permissive = permissive
         self.n_threads = len(os.sched_getaffinity(0)) if n_threads is None else n_threads
         self._build()
         self.noise = noise_std * np.random.default_rng(seed).standard_normal((n_particles, horizon, self.model.nu))
@@ -341,7 +348,7 @@ class MujocoShieldingRule(ShieldingRule):
         """
         m = len(nominal)
         if m == 0:
-            return MPCSolution(nominal.copy(), np.zeros(0), np.zeros(0, dtype=bool))
+            return MPCSolution(nominal.copy(), np.zeros(0), np.zeros(0, dtype=bool), np.zeros((0, self.n_particles)))
         particles = self.particles(nominal)
         scored = np.zeros((m, 0)) if scored is None else scored
         scores = np.concatenate([scored, self.plan_costs(states, particles[:, scored.shape[1] :], first_action)], axis=1)
@@ -353,7 +360,7 @@ class MujocoShieldingRule(ShieldingRule):
         best_cost = scores[np.arange(m), best]
         is_particle = mppi_cost >= best_cost
         plans = np.where(is_particle[:, None, None], particles[np.arange(m), best], mppi)
-        return MPCSolution(plans, np.where(is_particle, best_cost, mppi_cost), is_particle)
+        return MPCSolution(plans, np.where(is_particle, best_cost, mppi_cost), is_particle, scores)
 
     def first_certifying(self, costs: np.ndarray) -> np.ndarray:
         """Per row of ``costs`` ``(M, K)``, the index of the first ``J <= η``; ``K`` where there is none."""
@@ -385,6 +392,42 @@ class MujocoShieldingRule(ShieldingRule):
     def certificate_candidates(self, warm: np.ndarray) -> np.ndarray:
         """``(M, 1 + certificate_particles, H - 1, nu)``: ``W[1:]`` and the next particles of ``Q̄(s, a)``'s solve."""
         return self.particles(warm[:, 1:], 1 + self.certificate_particles)
+
+    def nearest_accepted(
+        self, proposals: np.ndarray, warm: np.ndarray, zeta: MPCSolution
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The accepted action nearest each rejected proposal (``permissive``), from ``ζ``'s solve around ``warm``.
+
+        Particle ``i`` of ``ζ``'s solve is ``c_i`` followed by particle ``i`` of ``Q̄(s, c_i)``'s solve (the same noise,
+        shifted), so ``Q̄(s, c_i) <= J_i`` and, ``Q̄ >= 0``, ``Ā(s, c_i) <= J_i``: where ``J_i <= η`` the rule accepts
+        ``c_i``. Of those and ``ζ(s)``, the nearest to the proposal in units of the control range is executed.
+
+        :param proposals: ``(M, nu)`` the rejected proposals (clipped to the control range).
+        :param warm: ``(M, H, nu)`` the warm plans ``ζ``'s solve was around.
+        :param zeta: that solve.
+        :return: ``(M, nu)`` the actions to execute, ``(M, H - 1, nu)`` the plans to follow after them, and ``(M,)``
+            where the action is an edit (not ``ζ(s)``).
+        """
+        particles = self.particles(warm)
+        span = self.action_high - self.action_low
+        distance = np.linalg.norm((particles[:, :, 0] - proposals[:, None]) / span, axis=-1)
+        distance = np.where(zeta.scores <= self.eta, distance, np.inf)
+        nearest = distance.argmin(axis=1)
+        rows = np.arange(len(proposals))
+        edited = distance[rows, nearest] < np.linalg.norm((zeta.plans[:, 0] - proposals) / span, axis=-1)
+        chosen = particles[rows, nearest]
+        actions = np.where(edited[:, None], chosen[:, 0], zeta.plans[:, 0])
+        return actions, np.where(edited[:, None, None], chosen[:, 1:], zeta.plans[:, 1:]), edited
+
+    def _edit_rejected(
+        self, rows: np.ndarray, actions: np.ndarray, warm: np.ndarray, zeta: MPCSolution, step: dict[str, np.ndarray]
+    ) -> None:
+        """Where ``permissive``, replace the backup's action and plan by the nearest accepted edit in ``rows`` of
+        ``step`` (``backup``, ``tails``, ``edited``), whose ``ζ`` solve is ``zeta``."""
+        if not self.permissive or len(rows) == 0:
+            return
+        executed, tails, edited = self.nearest_accepted(actions[rows], warm[rows], zeta)
+        step["backup"][rows], step["tails"][rows], step["edited"][rows] = executed, tails, edited
 
     # --- the rule -----------------------------------------------------------------------------------------------
 
@@ -434,7 +477,7 @@ class MujocoShieldingRule(ShieldingRule):
         safe = np.where(step.intervened[:, None], step.backup, actions)
         # where the state is unknown, so is Ā: the guard of ShieldingRule.shield executes the backup there (fail closed)
         advantage = np.where(known, step.advantage, np.nan)
-        return ShieldDecision(actions=safe, intervened=step.intervened, advantage=advantage)
+        return ShieldDecision(actions=safe, intervened=step.intervened, advantage=advantage, edited=step.edited)
 
     def _shield_solved(self, states: np.ndarray, actions: np.ndarray, warm: np.ndarray) -> ShieldStep:
         """The reference: ``Q̄(s, a)``, ``ζ(s)`` and ``Q̄(s, ζ(s))`` solved for every state, ``Ā`` exact.
@@ -444,7 +487,8 @@ class MujocoShieldingRule(ShieldingRule):
         """
         n = len(states)
         after_a = self.solve(states, warm[:, 1:], actions)
-        backup_plan = self.solve(states, warm).plans
+        zeta = self.solve(states, warm)
+        backup_plan = zeta.plans
         backup_value = self.solve(states, warm[:, 1:], backup_plan[:, 0]).costs
         advantage = after_a.costs - backup_value
         intervened = in_shielding_set(advantage, self.eta)
@@ -454,7 +498,12 @@ class MujocoShieldingRule(ShieldingRule):
         chosen = candidates[np.arange(n), np.minimum(first, candidates.shape[1] - 1)]
         tails = np.where(certified[:, None, None], chosen, after_a.plans)
         tails = np.where(intervened[:, None, None], backup_plan[:, 1:], tails)
-        return ShieldStep(backup_plan[:, 0], intervened, advantage, tails, n, n, n)
+        step = {"backup": backup_plan[:, 0].copy(), "tails": tails, "edited": np.zeros(n, dtype=bool)}
+        shielded = np.flatnonzero(intervened)
+        self._edit_rejected(
+            shielded, actions, warm, zeta._replace(plans=zeta.plans[shielded], scores=zeta.scores[shielded]), step
+        )
+        return ShieldStep(step["backup"], intervened, advantage, step["tails"], n, n, n, step["edited"])
 
     def _shield_certified(self, states: np.ndarray, actions: np.ndarray, warm: np.ndarray) -> ShieldStep:
         """:meth:`_shield_solved`'s decisions and plans, solving only what the bounds on ``Ā`` leave open.
@@ -492,7 +541,7 @@ class MujocoShieldingRule(ShieldingRule):
 
         open_ = open_[after_a.costs > self.eta]
         q_a = advantage[open_]
-        zeta = self.solve(states[open_], warm[open_])
+        solved_zeta, zeta = open_, self.solve(states[open_], warm[open_])
         backup[open_] = zeta.plans[:, 0]
         bound = self.plan_costs(states[open_], warm[open_, 1:], backup[open_])
         bound = np.where(zeta.is_particle, np.minimum(bound, zeta.costs), bound)
@@ -508,7 +557,13 @@ class MujocoShieldingRule(ShieldingRule):
         shielded = in_shielding_set(advantage[open_], self.eta)
         intervened[open_] = shielded
         tails[open_] = np.where(shielded[:, None, None], zeta_plans[:, 1:], tails[open_])
-        return ShieldStep(backup, intervened, advantage, tails, q_solves, backup_solves, backup_value_solves)
+        step = {"backup": backup, "tails": tails, "edited": np.zeros(len(states), dtype=bool)}
+        rejected = intervened[solved_zeta]  # every rejected row solved ζ in 3
+        zeta = zeta._replace(plans=zeta.plans[rejected], scores=zeta.scores[rejected])
+        self._edit_rejected(solved_zeta[rejected], actions, warm, zeta, step)
+        return ShieldStep(
+            step["backup"], intervened, advantage, step["tails"], q_solves, backup_solves, backup_value_solves, step["edited"]
+        )
 
     def _count(self, steps: int, step: ShieldStep) -> None:
         """Add a call's figures to :attr:`solve_counts`."""
