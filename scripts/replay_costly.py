@@ -16,7 +16,8 @@ import argparse
 import sys
 
 import sppo_sb3  # noqa: F401  (registers the tasks and rules)
-from sppo_sb3.shield.records import CostlyEpisode, replay
+from sppo_sb3.shield.records import CostlyEpisode
+from sppo_sb3.shield.replay import replay
 
 
 def main() -> int:

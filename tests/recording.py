@@ -1,4 +1,4 @@
-"""Test env wrappers shared by several test modules."""
+"""Test env wrappers and rules shared by several test modules."""
 
 from __future__ import annotations
 
@@ -6,6 +6,8 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+
+from sppo_sb3.shield import ShieldingRule
 
 
 class RecordExecuted(gym.Wrapper):
@@ -26,3 +28,15 @@ class RecordExecuted(gym.Wrapper):
         obs, reward, terminated, truncated, info = self.env.step(action)
         self._obs = obs
         return obs, reward, terminated, truncated, info
+
+
+class AcceptsAll(ShieldingRule):
+    """A two-control rule that lets everything through: the costly episodes a broken rule would leave."""
+
+    gamma = 0.99
+
+    def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        return np.zeros(len(obs))
+
+    def backup_action(self, obs: np.ndarray) -> np.ndarray:
+        return np.zeros((len(obs), 2))

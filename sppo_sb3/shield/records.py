@@ -8,11 +8,11 @@ rule's decision and the cost. An episode that paid cost becomes a :class:`Costly
 simulator state before its last :data:`WINDOW` env steps, the rule's name and parameters, the commit and the package
 versions.
 
-:func:`replay` rebuilds the env from the record, resets it from the recorded randomness and feeds the recorded
-proposals, one per env step, through a fresh ``ShieldWrapper`` with the recorded rule (or another one): closed loop, so
-that each decision is the rule's own, on the states its own decisions lead to. With the rule that was recorded, the
-replay repeats the episode step for step (MuJoCo's physics and the rules are deterministic); with a fixed rule, it says
-whether the rule now holds. ``python scripts/replay_costly.py RECORD.json`` prints it.
+:func:`~sppo_sb3.shield.replay.replay` rebuilds the env from the record, resets it from the recorded randomness and
+feeds the recorded proposals, one per env step, through a fresh ``ShieldWrapper`` with the recorded rule (or another
+one): closed loop, so that each decision is the rule's own, on the states its own decisions lead to. With the rule
+that was recorded, the replay repeats the episode step for step (MuJoCo's physics and the rules are deterministic);
+with a fixed rule, it says whether the rule now holds. ``python scripts/replay_costly.py RECORD.json`` prints it.
 """
 
 from __future__ import annotations
@@ -26,7 +26,6 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from sppo_sb3.common.keys import COST_KEY, EXECUTED_ACTION_KEY
 from sppo_sb3.common.provenance import package_versions, source_revision
 
 #: env steps before the last costly one whose first simulator state a record keeps (the issue's "last N steps")
@@ -204,61 +203,3 @@ def costly_episode(
         state_before_window=state if state is not None else np.asarray(obs).tolist(),
         provenance={**source_revision(), "packages": package_versions()},
     )
-
-
-@dataclass
-class Replay:
-    """What :func:`replay` found: the recorded and the replayed costly env steps, and the first step where the replay's
-    executed action differs from the record's (``None``: none, the episode repeated step for step)."""
-
-    recorded_costly: list[int]
-    replayed_costly: list[int]
-    first_divergence: int | None
-    steps: int
-
-    @property
-    def holds(self) -> bool:
-        """The rule replayed paid no cost on the recorded proposals."""
-        return not self.replayed_costly
-
-    def summary(self) -> str:
-        same = "step for step" if self.first_divergence is None else f"until env step {self.first_divergence}"
-        verdict = "the rule now holds" if self.holds else f"{len(self.replayed_costly)} costly env steps"
-        return (
-            f"recorded: {len(self.recorded_costly)} costly env steps (first at {self.recorded_costly[:1]}); replayed "
-            f"{self.steps} env steps closed loop, executed as recorded {same}: {verdict}"
-        )
-
-
-def replay(record: CostlyEpisode, rule: Any = None, tolerance: float = 1e-9) -> Replay:
-    """Replay ``record`` closed loop: its proposals, one per env step, through a fresh ``ShieldWrapper``.
-
-    :param record: a :class:`CostlyEpisode`.
-    :param rule: the rule to replay with (a :class:`~sppo_sb3.shield.ShieldingRule` or a registered name); ``None``: the
-        recorded one, by its registered name.
-    :param tolerance: how far an executed action may be from the record's and still count as the same.
-    """
-    from sppo_sb3.shield.wrapper import ShieldWrapper  # the wrapper records with this module
-
-    rule = record.rule if rule is None else rule
-    if rule is None:
-        raise ValueError(
-            f"The record's rule was an object ({record.rule_class}), not a registered name: pass the rule to replay with "
-            "(replay(record, rule=...); scripts/replay_costly.py --rule NAME)."
-        )
-    env = gym.make(record.env_id, **record.env_kwargs)
-    shielded = ShieldWrapper(env, rule)
-    seed = restore_randomness(env, record.log.randomness)
-    shielded.reset(seed=seed)
-    replayed, divergence = [], None
-    for t, proposal in enumerate(record.log.proposed):
-        _, _, terminated, truncated, info = shielded.step(np.asarray(proposal).reshape(env.action_space.shape))
-        executed = np.asarray(info[EXECUTED_ACTION_KEY], dtype=np.float64).ravel()
-        if divergence is None and np.max(np.abs(executed - record.log.executed[t])) > tolerance:
-            divergence = t
-        if float(info.get(COST_KEY, 0.0)) > 0:
-            replayed.append(t)
-        if terminated or truncated:
-            break
-    env.close()
-    return Replay(record.costly_steps, replayed, divergence, t + 1)

@@ -10,24 +10,14 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+from recording import AcceptsAll
 
 import sppo_sb3  # noqa: F401  (registers the tasks and rules)
-from sppo_sb3.shield import ShieldingRule, ShieldWrapper
-from sppo_sb3.shield.records import WINDOW, CostlyEpisode, replay, reset_randomness, restore_randomness
+from sppo_sb3.shield import ShieldWrapper
+from sppo_sb3.shield.records import WINDOW, CostlyEpisode, reset_randomness, restore_randomness
+from sppo_sb3.shield.replay import replay
 
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "replay_costly.py"
-
-
-class AcceptsAll(ShieldingRule):
-    """A rule that lets everything through: the costly episodes a broken rule would leave."""
-
-    gamma = 0.99
-
-    def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        return np.zeros(len(obs))
-
-    def backup_action(self, obs: np.ndarray) -> np.ndarray:
-        return np.zeros((len(obs), 2))
 
 
 def drive(env: ShieldWrapper, action: list[float], episodes: int, seed: int | None, steps: int = 300) -> None:

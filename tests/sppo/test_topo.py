@@ -65,7 +65,7 @@ def test_consistency_loss_is_against_the_target_encoder() -> None:
     zero_last_layer(target.encoder, 0.25)  # h⁻(s') ≡ 0.25 in every latent dimension
     cfg = TOPOConfig(rho=0.5)
     data = batch()
-    _, _, _, _, consistency, _ = model_loss(model, target, data, th.zeros(H, B, ACT), cfg, 0.99)
+    _, _, _, _, consistency, *_ = model_loss(model, target, data, th.zeros(H, B, ACT), cfg, 0.99)
     with th.no_grad():
         z = model.encode(data.observations)
         expected = th.zeros(())

@@ -414,19 +414,11 @@ def test_train_cli_writes_the_records_of_costly_episodes_to_the_run_folder(tmp_p
     from types import SimpleNamespace
 
     import gymnasium as gym
+    from recording import AcceptsAll
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from sppo_sb3.shield.records import CostlyEpisode
     from sppo_sb3.zoo.experiment import SafeExperimentManager
-
-    class AcceptsAll(ShieldingRule):
-        gamma = 0.99
-
-        def cost_value(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
-            return np.zeros(len(obs))
-
-        def backup_action(self, obs: np.ndarray) -> np.ndarray:
-            return np.zeros((len(obs), 2))
 
     env = DummyVecEnv([lambda: ShieldWrapper(gym.make(ENV), AcceptsAll())])
     env.seed(3)
