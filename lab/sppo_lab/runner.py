@@ -49,8 +49,8 @@ def train_command(spec: RunSpec, zoo_dir: Path, config_path: Path | None, python
     cmd = [python or sys.executable, "-m", "sppo_sb3.train", "--algo", spec.algo, "--env", spec.task]
     if config_path is not None:
         cmd += ["-conf", str(config_path)]
-    if spec.steps is not None:
-        cmd += ["-n", str(int(spec.steps))]
+    if spec.agent_steps is not None:
+        cmd += ["-n", str(spec.agent_steps)]
     cmd += ["--seed", str(spec.seed), "-f", str(zoo_dir), "--eval-freq", "-1", "--num-threads", "1"]
     cmd += ["--device", spec.device, *spec.zoo_args]
     return cmd
@@ -104,6 +104,8 @@ def execute(spec_dict: dict[str, Any], work_dir: str | None = None) -> dict[str,
             provenance = run_provenance(revision, final_model_path(zoo_dir))
             interventions = monitor_interventions(zoo_dir)
             timesteps = model_timesteps(zoo_dir)
+            if timesteps is not None:  # the model counts agent steps
+                timesteps *= spec.action_repeat
             result["summary"] = summarize(spec, curve, safety, wall_s, cmd, timesteps, provenance, interventions)
             result["curve_csv"] = curve.to_csv(index=False)
         return result

@@ -330,3 +330,21 @@ def test_every_committed_run_is_named_by_its_folder() -> None:
     for path in summaries:
         summary = json.loads(path.read_text())
         assert run_name(summary["algo"], summary.get("variant", "")) == path.parent.parent.name, path
+
+
+@pytest.mark.parametrize(
+    "wrapper, agent_steps",
+    [
+        ("", 1000),
+        ("  env_wrapper:\n    - sppo_sb3.shield.ShieldWrapper:\n        rule: auto\n        action_repeat: 5\n", 200),
+        ("  env_wrapper:\n    - sppo_sb3.common.action_repeat.ActionRepeat:\n        repeat: 4\n", 250),
+    ],
+)
+def test_a_run_of_held_actions_trains_its_env_steps_in_agent_steps(tmp_path: Path, wrapper: str, agent_steps: int) -> None:
+    """``--steps`` counts env steps: where the yml holds each action for k env steps, the train command's ``-n`` (agent
+    steps) is a k-th of them, so that every row of a grid sees the same env steps."""
+    config = f"SafePointCircle-v0:\n  policy: 'MlpPolicy'\n{wrapper}"
+    spec = grid.RunSpec("SafePointCircle-v0", "sppo", 0, str(tmp_path), steps=1000, config_text=config)
+    command = runner.train_command(spec, tmp_path / "zoo", tmp_path / "sppo.yml")
+    assert command[command.index("-n") + 1] == str(agent_steps)
+    assert spec.action_repeat * agent_steps == 1000
