@@ -8,7 +8,8 @@ import pytest
 import torch as th
 from recording import RecordExecuted
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
-from tiny_hyperparams import SMALL_TOLD, TINIEST_MPPI, TINIEST_TOLD, TINY_ROLLOUT
+from tiny_hyperparams import TINIEST_MPPI, TINIEST_TOLD, TINY_ROLLOUT
+from trainable_told import trainable_told
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3 import PDO, SPPO
@@ -17,7 +18,6 @@ from sppo_sb3.shield import LearnedCostCriticRule, PointCircleShieldingRule, Shi
 from sppo_sb3.shield.analysis.bounds import adoptability_gap, discounted_violation, theorem1_bound
 from sppo_sb3.shield.evaluation import evaluate_deployment
 from sppo_sb3.sppo.buffers import SequenceSamples
-from sppo_sb3.sppo.optim import init_optimizer_state
 from sppo_sb3.sppo.planner import policy_rollout, trajectory_return
 from sppo_sb3.sppo.policies import TOLDPolicy
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, topo_update
@@ -87,14 +87,7 @@ def test_policy_rollout_scores_with_the_termination_head() -> None:
 
 def test_termination_head_learns_the_absorbing_flags() -> None:
     """TOPO's cross-entropy teaches the head which (s, a) end the episode of M̃ (here: a_0 > 0)."""
-    th.manual_seed(0)
-    model = TOLD(obs_dim=3, action_dim=2, **SMALL_TOLD, termination=True)
-    target = TOLD(obs_dim=3, action_dim=2, **SMALL_TOLD, termination=True)
-    target.load_state_dict(model.state_dict())
-    optimizer = th.optim.Adam([p for n, p in model.named_parameters() if not n.startswith("pi.")])
-    pi_optimizer = th.optim.Adam(model.pi.parameters())
-    for opt in (optimizer, pi_optimizer):
-        init_optimizer_state(opt)
+    model, target, optimizer, pi_optimizer = trainable_told(termination=True)
     lr, ema = th.tensor(3e-3), th.tensor(0.0)
     for _ in range(300):
         obs, actions = th.randn(64, 3), th.rand(1, 64, 2) * 2 - 1

@@ -9,14 +9,14 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
-from tiny_hyperparams import SMALL_TOLD, TINY_SPPO, TINY_TOLD
+from tiny_hyperparams import TINY_SPPO, TINY_TOLD
+from trainable_told import trainable_told
 
 import sppo_sb3  # noqa: F401  (registers the tasks)
 from sppo_sb3 import SPPO
 from sppo_sb3.common.lagrange import PIDLagrangian
 from sppo_sb3.shield import ShieldingRule
 from sppo_sb3.sppo.buffers import SequenceSamples
-from sppo_sb3.sppo.optim import init_optimizer_state
 from sppo_sb3.sppo.planner import MPPIConfig, MPPIPlanner
 from sppo_sb3.sppo.topo import TOPO_STATS, TOPOConfig, topo_update
 from sppo_sb3.sppo.world_model import TOLD
@@ -67,14 +67,7 @@ def test_priced_interventions_steer_the_plan_off_what_the_shield_rejects(penalty
 def test_intervention_head_learns_which_proposals_the_shield_rejects() -> None:
     """TOPO's cross-entropy teaches the head the shield's decisions on the *proposals* (here: rejected where
     proposal_0 > 0), whatever the executed actions were."""
-    th.manual_seed(0)
-    model = TOLD(obs_dim=3, action_dim=2, **SMALL_TOLD, intervention=True)
-    target = TOLD(obs_dim=3, action_dim=2, **SMALL_TOLD, intervention=True)
-    target.load_state_dict(model.state_dict())
-    optimizer = th.optim.Adam([p for n, p in model.named_parameters() if not n.startswith("pi.")])
-    pi_optimizer = th.optim.Adam(model.pi.parameters())
-    for opt in (optimizer, pi_optimizer):
-        init_optimizer_state(opt)
+    model, target, optimizer, pi_optimizer = trainable_told(intervention=True)
     lr, ema, price = th.tensor(3e-3), th.tensor(0.0), th.tensor(1.0)
     for _ in range(300):
         obs, proposals = th.randn(64, 3), th.rand(1, 64, 2) * 2 - 1
