@@ -66,6 +66,13 @@ class PIDLagrangian:
         if min(self.target, self.kp, self.ki, self.kd) < 0:
             raise ValueError(f"A PID Lagrangian needs a target and gains >= 0, got {self}.")
 
+    @classmethod
+    def starting_at(cls, target: float, multiplier: float) -> PIDLagrangian:
+        """A controller whose ``λ`` starts at ``multiplier`` (its integral set so that ``k_i·I = multiplier``)."""
+        pid = cls(target)
+        pid.integral, pid.multiplier = multiplier / pid.ki, multiplier
+        return pid
+
     def update(self, rate: float) -> float:
         """One step of the controller on the measured ``rate``; returns the new ``λ``."""
         error = rate - self.target

@@ -320,6 +320,16 @@ class ShieldingRule(ABC):
             )
 
 
+def make_permissive(rule: ShieldingRule) -> None:
+    """Turn on a rule's edits (``permissive``), or say which rules have them."""
+    if not hasattr(rule, "permissive"):
+        raise ValueError(
+            f"{type(rule).__name__} has no edits: permissive=True needs a rule that finds accepted actions near a rejected "
+            "proposal (sppo_sb3.shield.MujocoShieldingRule and the registered navigation, velocity and Half-Cheetah rules)."
+        )
+    rule.permissive = True
+
+
 def check_array(value: Any, name: str) -> None:
     """Reject an output that is not a real numeric numpy array, with a message that says what to return."""
     if not isinstance(value, np.ndarray):

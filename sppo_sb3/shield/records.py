@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -84,13 +85,14 @@ class EpisodeLog:
     intervened: list[bool] = field(default_factory=list)
     advantage: list[float | None] = field(default_factory=list)
     cost: list[float] = field(default_factory=list)
-    states: list[Any] = field(default_factory=list)  #: the simulator state before each of the last WINDOW + 1 steps
+    #: the simulator state before each of the last WINDOW + 1 steps
+    states: deque[Any] = field(default_factory=lambda: deque(maxlen=WINDOW + 1))
 
     def add(
         self, state: Any, proposed: np.ndarray, executed: np.ndarray, intervened: bool, advantage: float, cost: float
     ) -> None:
         """Log one env step: the state before it, what was proposed and executed, the decision and the cost."""
-        self.states = [*self.states[-WINDOW:], state]
+        self.states.append(state)
         self.proposed.append(np.asarray(proposed, dtype=np.float64).ravel().tolist())
         self.executed.append(np.asarray(executed, dtype=np.float64).ravel().tolist())
         self.intervened.append(bool(intervened))

@@ -19,7 +19,7 @@ from sppo_sb3.common.keys import (
     INTERVENTIONS_KEY,
     PROPOSED_ACTION_KEY,
 )
-from sppo_sb3.shield.base import ShieldDecision, ShieldingRule
+from sppo_sb3.shield.base import ShieldDecision, ShieldingRule, make_permissive
 from sppo_sb3.shield.intervention import OnIntervention, check_on_intervention, check_penalty
 from sppo_sb3.shield.records import MAX_RECORDS, CostlyEpisode, EpisodeLog, costly_episode, reset_randomness, simulator_state
 from sppo_sb3.shield.registry import resolve_shielding_rule
@@ -199,13 +199,3 @@ class ShieldWrapper(gym.Wrapper[np.ndarray, np.ndarray, np.ndarray, np.ndarray])
         backup = self.rule.checked_backup(obs, proposal.shape[1])
         takeover = ShieldDecision(actions=backup, intervened=np.ones(1, dtype=bool), advantage=np.full(1, np.nan))
         return self.rule.close_failures(obs, proposal, takeover)  # a backup action that is not finite: ShieldFailure
-
-
-def make_permissive(rule: ShieldingRule) -> None:
-    """Turn on a rule's edits (``permissive``), or say which rules have them."""
-    if not hasattr(rule, "permissive"):
-        raise ValueError(
-            f"{type(rule).__name__} has no edits: permissive=True needs a rule that finds accepted actions near a rejected "
-            "proposal (sppo_sb3.shield.MujocoShieldingRule and the registered navigation, velocity and Half-Cheetah rules)."
-        )
-    rule.permissive = True

@@ -33,13 +33,12 @@ from sppo_sb3.common.keys import (
 )
 from sppo_sb3.common.lagrange import PIDLagrangian
 from sppo_sb3.common.safety import SafetyTrackingMixin
-from sppo_sb3.shield.base import ShieldingRule
+from sppo_sb3.shield.base import ShieldingRule, make_permissive
 from sppo_sb3.shield.intervention import OnIntervention, check_on_intervention, check_penalty
 from sppo_sb3.shield.learned.base import RefinableRule
 from sppo_sb3.shield.learned.latent import LatentModelRule
 from sppo_sb3.shield.persistence import ShieldedLoadMixin
 from sppo_sb3.shield.registry import resolve_shielding_rule
-from sppo_sb3.shield.wrapper import make_permissive
 from sppo_sb3.sppo.buffers import SPPO_ON_INTERVENTION, ShieldedReplayBuffer
 from sppo_sb3.sppo.compile import CompiledFunction, CompileMode, check_compile_mode, should_compile
 from sppo_sb3.sppo.optim import init_optimizer_state, supports_tensor_step
@@ -277,7 +276,9 @@ class SPPO(ShieldedLoadMixin, SafetyTrackingMixin, OffPolicyAlgorithm):
                 f"{intervention_target}."
             )
         self.intervention_target = intervention_target
-        self.intervention_price = None if intervention_target is None else starting_price(intervention_target, penalty)
+        self.intervention_price = (
+            None if intervention_target is None else PIDLagrangian.starting_at(intervention_target, penalty)
+        )
         self.intervention_rate = 0.0
         self.policy_kwargs["intervention"] = intervention_target is not None
         if termination_model == "auto":
@@ -692,14 +693,6 @@ def record_own_intervention(info: dict[str, Any], intervened: bool, edited: bool
     info[INTERVENED_KEY], info[INTERVENTIONS_KEY], info[PROPOSED_ACTION_KEY] = count > 0, count, proposal
     if edited or EDITS_KEY in info:
         info[EDITS_KEY] = int(edited) + edit_count(info)
-
-
-def starting_price(target: float, penalty: float) -> PIDLagrangian:
-    """The PID multiplier of ``intervention_target``, started at ``penalty`` (its integral set so that ``λ_0 = penalty``)."""
-    pid = PIDLagrangian(target)
-    pid.integral = penalty / pid.ki
-    pid.multiplier = penalty
-    return pid
 
 
 def check_discount_source(planner_kwargs: dict[str, Any] | None, topo_kwargs: dict[str, Any] | None) -> None:
